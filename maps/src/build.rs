@@ -1,0 +1,129 @@
+//! OSM data to a [`Map`]: a sequence of small named transformations, each followed by an
+//! invariant check.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::MapError;
+use crate::geometry::Point;
+use crate::model::{DrivingSide, Map};
+use crate::osm::{OsmData, read_osm_file};
+use crate::profile::RoadProfile;
+use crate::projection::LatLon;
+
+mod connect;
+mod roundabouts;
+mod select;
+mod shape;
+mod stops;
+
+use select::Builder;
+
+/// Where U-turns are allowed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UTurns {
+    Never,
+    /// Only at dead ends (turning round at the end of a street).
+    #[default]
+    DeadEnds,
+    Everywhere,
+}
+
+/// A region to keep: a bounding box or a polygon, in WGS84.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Clip {
+    BoundingBox {
+        min: LatLon,
+        max: LatLon,
+    },
+    /// A closed ring (the last point may repeat the first).
+    Polygon {
+        ring: Vec<LatLon>,
+    },
+}
+
+impl Clip {
+    pub fn contains(&self, p: LatLon) -> bool {
+        match self {
+            Clip::BoundingBox { min, max } => {
+                p.lat >= min.lat && p.lat <= max.lat && p.lon >= min.lon && p.lon <= max.lon
+            }
+            Clip::Polygon { ring } => {
+                let poly: Vec<Point> = ring.iter().map(|q| Point::new(q.lon, q.lat)).collect();
+                crate::geometry::point_in_polygon(Point::new(p.lon, p.lat), &poly)
+            }
+        }
+    }
+}
+
+/// Everything that steers an import. `Default` is the car profile, auto-detected driving
+/// side, U-turns at dead ends, roundabout guessing on, invariant checks on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ImportOptions {
+    pub profile: RoadProfile,
+    pub clip: Option<Clip>,
+    /// None: from the map's location (left-hand traffic regions are listed in `tags`).
+    pub driving_side: Option<DrivingSide>,
+    pub u_turns: UTurns,
+    /// Report untagged near-circular one-way loops as (guessed) roundabouts.
+    pub guess_roundabouts: bool,
+    /// Projection origin. None: the centre of the selected roads (OSM), or (0, 0) with
+    /// Lanelet2's UTM convention (Lanelet2, as the INTERACTION dataset does).
+    pub origin: Option<LatLon>,
+    /// Run `check_invariants` after every transformation (cheap; on by default).
+    pub check_invariants: bool,
+}
+
+impl Default for ImportOptions {
+    fn default() -> Self {
+        ImportOptions {
+            profile: RoadProfile::car(),
+            clip: None,
+            driving_side: None,
+            u_turns: UTurns::DeadEnds,
+            guess_roundabouts: true,
+            origin: None,
+            check_invariants: true,
+        }
+    }
+}
+
+/// Reads and imports one file (`.osm`, `.osm.gz`, `.osm.pbf`, or a Lanelet2 `.osm`).
+pub fn import_file(path: &Path, options: &ImportOptions) -> Result<Map, MapError> {
+    let (osm, _format) = read_osm_file(path)?;
+    import_osm(&osm, options).map_err(|e| e.with_path(path))
+}
+
+/// Imports parsed OSM data: Lanelet2 maps (with `type=lanelet` relations) through
+/// [`crate::lanelet2`], everything else through the OSM road pipeline.
+pub fn import_osm(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError> {
+    if osm.is_lanelet2() {
+        crate::lanelet2::build_lanelet2_map(osm, options)
+    } else {
+        build_osm_map(osm, options)
+    }
+}
+
+fn build_osm_map(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError> {
+    let mut b = Builder::select_roads(osm, options)?;
+    b.check("select_roads")?;
+    b.shape_junctions();
+    b.check("shape_junctions")?;
+    b.build_lanes();
+    b.check("build_lanes")?;
+    b.connect_lanes();
+    b.check("connect_lanes")?;
+    b.apply_turn_restrictions();
+    b.check("apply_turn_restrictions")?;
+    b.find_roundabouts();
+    b.check("find_roundabouts")?;
+    b.place_stop_lines();
+    b.check("place_stop_lines")?;
+    b.paint_markings();
+    b.check("paint_markings")?;
+    Ok(b.map)
+}

@@ -1,0 +1,288 @@
+//! OSM XML (`.osm`, also gzip-compressed) with quick-xml, streaming.
+
+use std::io::BufRead;
+use std::path::Path;
+
+use quick_xml::events::{BytesStart, Event};
+
+use super::{Member, MemberKind, OsmData, OsmRelation, OsmWay, Tags};
+use crate::error::MapError;
+
+/// Reads an OSM XML file, plain or gzip-compressed.
+pub fn read_xml(path: &Path) -> Result<OsmData, MapError> {
+    let file = std::fs::File::open(path).map_err(|e| MapError::io(path, e))?;
+    let mut reader = std::io::BufReader::with_capacity(1 << 16, file);
+    let gz = reader
+        .fill_buf()
+        .map_err(|e| MapError::io(path, e))?
+        .starts_with(&[0x1f, 0x8b]);
+    if gz {
+        let decoder = flate2::bufread::MultiGzDecoder::new(reader);
+        parse_xml(std::io::BufReader::with_capacity(1 << 16, decoder))
+    } else {
+        parse_xml(reader)
+    }
+    .map_err(|e| e.with_path(path))
+}
+
+enum Open {
+    None,
+    Node {
+        id: i64,
+        lat: f64,
+        lon: f64,
+        tags: Tags,
+    },
+    Way {
+        id: i64,
+        way: OsmWay,
+    },
+    Relation {
+        id: i64,
+        rel: OsmRelation,
+    },
+}
+
+/// Parses OSM XML from any buffered reader. Errors carry no path; [`read_xml`] adds it.
+pub fn parse_xml<R: BufRead>(input: R) -> Result<OsmData, MapError> {
+    let mut reader = quick_xml::Reader::from_reader(input);
+    reader.config_mut().trim_text(true);
+    let mut buf = Vec::with_capacity(1024);
+    let mut data = OsmData::default();
+    let mut open = Open::None;
+    let mut saw_root = false;
+    loop {
+        let pos = reader.buffer_position();
+        let event = reader
+            .read_event_into(&mut buf)
+            .map_err(|e| MapError::Parse {
+                path: None,
+                message: format!("malformed XML near byte {pos}: {e}"),
+            })?;
+        let bad = |msg: String| MapError::Parse {
+            path: None,
+            message: format!("{msg} (near byte {pos})"),
+        };
+        match event {
+            Event::Start(ref e) | Event::Empty(ref e) => {
+                let is_empty = matches!(event, Event::Empty(_));
+                match e.name().as_ref() {
+                    b"osm" | b"osmChange" => saw_root = true,
+                    b"node" => {
+                        let a = Attrs::read(e).map_err(bad)?;
+                        if a.deleted {
+                            continue;
+                        }
+                        let id = a.id.ok_or_else(|| bad("a <node> has no id".into()))?;
+                        let (lat, lon) = match (a.lat, a.lon) {
+                            (Some(lat), Some(lon)) => (lat, lon),
+                            _ => (f64::NAN, f64::NAN),
+                        };
+                        open = Open::Node {
+                            id,
+                            lat,
+                            lon,
+                            tags: Tags::default(),
+                        };
+                        if is_empty {
+                            close(&mut data, &mut open);
+                        }
+                    }
+                    b"way" => {
+                        let a = Attrs::read(e).map_err(bad)?;
+                        let id = a.id.ok_or_else(|| bad("a <way> has no id".into()))?;
+                        open = Open::Way {
+                            id,
+                            way: OsmWay {
+                                nodes: Vec::new(),
+                                tags: Tags::default(),
+                            },
+                        };
+                        if is_empty || a.deleted {
+                            close(&mut data, &mut open);
+                        }
+                    }
+                    b"relation" => {
+                        let a = Attrs::read(e).map_err(bad)?;
+                        let id = a.id.ok_or_else(|| bad("a <relation> has no id".into()))?;
+                        open = Open::Relation {
+                            id,
+                            rel: OsmRelation {
+                                members: Vec::new(),
+                                tags: Tags::default(),
+                            },
+                        };
+                        if is_empty || a.deleted {
+                            close(&mut data, &mut open);
+                        }
+                    }
+                    b"tag" => {
+                        let a = Attrs::read(e).map_err(bad)?;
+                        if let (Some(k), Some(v)) = (a.k, a.v) {
+                            match &mut open {
+                                Open::Node { tags, .. } => tags.insert(k, v),
+                                Open::Way { way, .. } => way.tags.insert(k, v),
+                                Open::Relation { rel, .. } => rel.tags.insert(k, v),
+                                Open::None => {}
+                            }
+                        }
+                    }
+                    b"nd" => {
+                        let a = Attrs::read(e).map_err(bad)?;
+                        if let (Open::Way { way, .. }, Some(r)) = (&mut open, a.reference) {
+                            way.nodes.push(r);
+                        }
+                    }
+                    b"member" => {
+                        let a = Attrs::read(e).map_err(bad)?;
+                        if let (Open::Relation { rel, .. }, Some(r), Some(kind)) =
+                            (&mut open, a.reference, a.member_kind)
+                        {
+                            rel.members.push(Member {
+                                kind,
+                                id: r,
+                                role: a.role.unwrap_or_default(),
+                            });
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            Event::End(ref e) => {
+                if matches!(e.name().as_ref(), b"node" | b"way" | b"relation") {
+                    close(&mut data, &mut open);
+                }
+            }
+            Event::Eof => break,
+            _ => {}
+        }
+        buf.clear();
+    }
+    if !saw_root {
+        return Err(MapError::Parse {
+            path: None,
+            message: "no <osm> root element: not an OSM XML file".into(),
+        });
+    }
+    if !matches!(open, Open::None) {
+        return Err(MapError::Parse {
+            path: None,
+            message: "the file ends inside an element (truncated?)".into(),
+        });
+    }
+    Ok(data)
+}
+
+fn close(data: &mut OsmData, open: &mut Open) {
+    match std::mem::replace(open, Open::None) {
+        Open::Node { id, lat, lon, tags } => data.add_node(id, lat, lon, tags),
+        Open::Way { id, way } => {
+            data.ways.insert(id, way);
+        }
+        Open::Relation { id, rel } => {
+            data.relations.insert(id, rel);
+        }
+        Open::None => {}
+    }
+}
+
+#[derive(Default)]
+struct Attrs {
+    id: Option<i64>,
+    lat: Option<f64>,
+    lon: Option<f64>,
+    k: Option<String>,
+    v: Option<String>,
+    reference: Option<i64>,
+    member_kind: Option<MemberKind>,
+    role: Option<String>,
+    deleted: bool,
+}
+
+impl Attrs {
+    fn read(e: &BytesStart) -> Result<Self, String> {
+        let mut a = Attrs::default();
+        for attr in e.attributes() {
+            let attr = attr.map_err(|err| format!("bad attribute: {err}"))?;
+            let raw = || -> Result<String, String> {
+                attr.unescape_value()
+                    .map(|v| v.into_owned())
+                    .map_err(|err| format!("bad attribute value: {err}"))
+            };
+            let text = || {
+                std::str::from_utf8(&attr.value).map_err(|_| "attribute is not UTF-8".to_string())
+            };
+            match attr.key.as_ref() {
+                b"id" => a.id = Some(parse_int(text()?)?),
+                b"ref" => a.reference = Some(parse_int(text()?)?),
+                b"lat" => a.lat = Some(parse_float(text()?)?),
+                b"lon" => a.lon = Some(parse_float(text()?)?),
+                b"k" => a.k = Some(raw()?),
+                b"v" => a.v = Some(raw()?),
+                b"role" => a.role = Some(raw()?),
+                b"type" => {
+                    a.member_kind = match attr.value.as_ref() {
+                        b"node" => Some(MemberKind::Node),
+                        b"way" => Some(MemberKind::Way),
+                        b"relation" => Some(MemberKind::Relation),
+                        _ => None,
+                    }
+                }
+                b"action" => a.deleted |= attr.value.as_ref() == b"delete",
+                b"visible" => a.deleted |= attr.value.as_ref() == b"false",
+                _ => {}
+            }
+        }
+        Ok(a)
+    }
+}
+
+fn parse_int(s: &str) -> Result<i64, String> {
+    s.trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not an integer id"))
+}
+
+fn parse_float(s: &str) -> Result<f64, String> {
+    s.trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a coordinate"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_nodes_ways_relations_and_tags() {
+        let xml = r#"<?xml version="1.0"?>
+<osm version="0.6">
+  <node id="1" lat="10.5" lon="20.25"><tag k="highway" v="stop"/></node>
+  <node id="2" lat="10.6" lon="20.35"/>
+  <way id="7"><nd ref="1"/><nd ref="2"/><tag k="highway" v="residential"/><tag k="name" v="A &amp; B"/></way>
+  <relation id="9"><member type="way" ref="7" role="from"/><tag k="type" v="restriction"/></relation>
+</osm>"#;
+        let d = parse_xml(xml.as_bytes()).expect("parses");
+        assert_eq!(d.nodes.len(), 2);
+        assert_eq!(d.nodes[&1].tags.get("highway"), Some("stop"));
+        assert_eq!(d.ways[&7].nodes, vec![1, 2]);
+        assert_eq!(d.ways[&7].tags.get("name"), Some("A & B"));
+        assert_eq!(d.relations[&9].members[0].role, "from");
+    }
+
+    #[test]
+    fn malformed_and_truncated_inputs_are_errors() {
+        assert!(parse_xml(&b"<osm><node id=\"1\" lat=\"1\" lon=\"2\"></way></osm>"[..]).is_err());
+        assert!(parse_xml(&b"<osm><way id=\"1\"><nd ref=\"1\"/>"[..]).is_err());
+        assert!(parse_xml(&b"hello"[..]).is_err());
+        assert!(parse_xml(&b"<osm><node id=\"x\" lat=\"1\" lon=\"2\"/></osm>"[..]).is_err());
+    }
+
+    #[test]
+    fn absurd_coordinates_are_dropped_and_counted() {
+        let d = parse_xml(&b"<osm><node id=\"1\" lat=\"95\" lon=\"2\"/><node id=\"2\" lat=\"1\" lon=\"2\"/></osm>"[..])
+            .expect("parses");
+        assert_eq!(d.invalid_nodes, vec![1]);
+        assert_eq!(d.nodes.len(), 1);
+    }
+}

@@ -1,0 +1,260 @@
+//! The command line, as in ARCHITECTURE.md:
+//!
+//! ```text
+//! pipeline [--config FILE] [--run-dir DIR] [--seed N] [-v | -q] [--rerun save|spawn|connect[=ADDR]|off] <group> <command>
+//! ```
+//!
+//! Global options may also follow the group or command (clap's `global`), so
+//! `pipeline map import x.osm --out o -q` works as well. Only commands that work exist.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use crate::ui::Verbosity;
+
+/// Drivable maps, segmentation data, segmenters and driving agents for real places.
+#[derive(Debug, Parser)]
+#[command(
+    name = "pipeline",
+    version,
+    propagate_version = true,
+    max_term_width = 100
+)]
+pub struct Cli {
+    /// TOML file with defaults for commands (e.g. a `[map.import]` table); options given on
+    /// the command line win.
+    #[arg(long, global = true, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+
+    /// Folder that relative output paths (`--out`) are resolved in [default: the current folder].
+    #[arg(long, global = true, value_name = "DIR")]
+    pub run_dir: Option<PathBuf>,
+
+    /// Seed of every random draw; recorded in each output.
+    #[arg(long, global = true, value_name = "N", default_value_t = 0)]
+    pub seed: u64,
+
+    /// More detail (timings, per-step figures); -vv for even more.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
+    pub verbose: u8,
+
+    /// Only errors.
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+
+    /// Where the rerun recording goes: `save` (recording.rrd in the output folder), `spawn` (a
+    /// new viewer), `connect[=ADDR]` (a running viewer, default 127.0.0.1:9876), or `off`.
+    #[arg(long, global = true, value_name = "MODE", default_value = "save", value_parser = parse_rerun)]
+    pub rerun: RerunMode,
+
+    #[command(subcommand)]
+    pub command: Group,
+}
+
+impl Cli {
+    pub fn verbosity(&self) -> Verbosity {
+        if self.quiet {
+            Verbosity::Quiet
+        } else if self.verbose > 0 {
+            Verbosity::Verbose
+        } else {
+            Verbosity::Normal
+        }
+    }
+}
+
+/// Where a command's rerun recording goes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RerunMode {
+    Save,
+    Spawn,
+    /// A gRPC proxy URL (`rerun+http://HOST:PORT/proxy`).
+    Connect(String),
+    Off,
+}
+
+/// The address a viewer listens on by default (`rerun` with no arguments).
+pub const DEFAULT_RERUN_URL: &str = "rerun+http://127.0.0.1:9876/proxy";
+
+fn parse_rerun(s: &str) -> Result<RerunMode, String> {
+    match s {
+        "save" => Ok(RerunMode::Save),
+        "spawn" => Ok(RerunMode::Spawn),
+        "off" => Ok(RerunMode::Off),
+        "connect" => Ok(RerunMode::Connect(DEFAULT_RERUN_URL.to_owned())),
+        _ => match s.strip_prefix("connect=") {
+            Some(addr) if !addr.trim().is_empty() => Ok(RerunMode::Connect(rerun_url(addr.trim()))),
+            _ => Err(format!(
+                "expected save, spawn, connect, connect=ADDR or off, not `{s}`"
+            )),
+        },
+    }
+}
+
+/// `HOST:PORT` (or a full URL) to the proxy URL the rerun SDK wants.
+fn rerun_url(addr: &str) -> String {
+    if addr.contains("://") {
+        addr.to_owned()
+    } else {
+        format!("rerun+http://{addr}/proxy")
+    }
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Group {
+    /// Maps: import OpenStreetMap / Lanelet2 files, inspect them, route on them.
+    Map {
+        #[command(subcommand)]
+        command: MapCommand,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+pub enum MapCommand {
+    /// Import an OSM (.osm, .osm.gz, .osm.pbf) or Lanelet2 file into a map folder.
+    Import(ImportArgs),
+    /// Print a map's summary (lanes, lengths, junctions, components, roundabouts).
+    Info(InfoArgs),
+    /// Fastest route over lanes between two points.
+    Route(RouteArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ImportArgs {
+    /// The input file.
+    pub input: PathBuf,
+
+    /// Output folder (written atomically; replaced if it holds an earlier import).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+
+    /// Road selection: car, passenger, all, or a TOML profile file [default: car].
+    #[arg(long, value_name = "NAME|FILE")]
+    pub profile: Option<String>,
+
+    /// Keep only what lies in this WGS84 box.
+    #[arg(
+        long,
+        value_name = "MINLON,MINLAT,MAXLON,MAXLAT",
+        conflicts_with = "clip_polygon"
+    )]
+    pub clip_bbox: Option<String>,
+
+    /// Keep only what lies in this polygon (GeoJSON, or Osmosis .poly).
+    #[arg(long, value_name = "FILE")]
+    pub clip_polygon: Option<PathBuf>,
+
+    /// Traffic side [default: from the map's location].
+    #[arg(long, value_enum)]
+    pub driving_side: Option<DrivingSideArg>,
+
+    /// Where U-turns are allowed [default: dead-ends].
+    #[arg(long, value_enum)]
+    pub u_turns: Option<UTurnsArg>,
+
+    /// Do not report untagged near-circular one-way loops as roundabouts.
+    #[arg(long)]
+    pub no_guess_roundabouts: bool,
+
+    /// Projection origin [default: centre of the selected roads; (0, 0) UTM for Lanelet2].
+    #[arg(long, value_name = "LAT,LON")]
+    pub origin: Option<String>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DrivingSideArg {
+    Left,
+    Right,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum UTurnsArg {
+    Never,
+    DeadEnds,
+    Everywhere,
+}
+
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// A map file (map.json or map.bin) or a map folder.
+    pub map: PathBuf,
+
+    /// Print the summary as JSON (the same keys as summary.json).
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct RouteArgs {
+    /// A map file (map.json or map.bin) or a map folder.
+    pub map: PathBuf,
+
+    /// Start, in map metres `x,y` (or `lat,lon` with --lat-lon).
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    pub from: String,
+
+    /// Destination, in map metres `x,y` (or `lat,lon` with --lat-lon).
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    pub to: String,
+
+    /// --from and --to are WGS84 `lat,lon`.
+    #[arg(long)]
+    pub lat_lon: bool,
+
+    /// Write the route here (.json, or .geojson for a LineString in WGS84) instead of printing it.
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rerun_modes() {
+        assert_eq!(parse_rerun("save"), Ok(RerunMode::Save));
+        assert_eq!(
+            parse_rerun("connect"),
+            Ok(RerunMode::Connect(DEFAULT_RERUN_URL.into()))
+        );
+        assert_eq!(
+            parse_rerun("connect=127.0.0.1:9000"),
+            Ok(RerunMode::Connect(
+                "rerun+http://127.0.0.1:9000/proxy".into()
+            ))
+        );
+        assert!(parse_rerun("connect=").is_err());
+        assert!(parse_rerun("web").is_err());
+    }
+
+    #[test]
+    fn global_options_before_and_after_the_command() -> Result<(), clap::Error> {
+        let a = Cli::try_parse_from([
+            "pipeline", "--seed", "7", "-q", "--rerun", "off", "map", "info", "m",
+        ])?;
+        assert_eq!((a.seed, a.quiet, a.rerun), (7, true, RerunMode::Off));
+        let b = Cli::try_parse_from([
+            "pipeline", "map", "import", "x.osm", "--out", "o", "-v", "--config", "c.toml",
+        ])?;
+        assert_eq!(b.verbosity(), Verbosity::Verbose);
+        assert!(Cli::try_parse_from(["pipeline", "-v", "-q", "map", "info", "m"]).is_err());
+        let r = Cli::try_parse_from([
+            "pipeline", "map", "route", "m", "--from", "-1.5,2", "--to", "3,-4",
+        ])?;
+        let Group::Map {
+            command: MapCommand::Route(r),
+        } = r.command
+        else {
+            panic!("not a route")
+        };
+        assert_eq!((r.from.as_str(), r.to.as_str()), ("-1.5,2", "3,-4"));
+        Ok(())
+    }
+
+    #[test]
+    fn clap_definition_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+}

@@ -1,0 +1,109 @@
+//! The `--config` TOML file: defaults for commands, overridden by the command line.
+//!
+//! ```toml
+//! [map.import]
+//! profile = "passenger"            # car | passenger | all | a profile TOML file
+//! clip_bbox = "-87.69,42.05,-87.66,42.07"
+//! # clip_polygon = "campus.poly"   # GeoJSON or Osmosis .poly
+//! driving_side = "right"           # left | right
+//! u_turns = "dead-ends"            # never | dead-ends | everywhere
+//! guess_roundabouts = true
+//! origin = "42.0561,-87.6752"      # lat,lon
+//! ```
+//!
+//! Unknown keys are errors, so a typo does not silently fall back to a default. Relative
+//! paths in the file are relative to the file itself.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use serde::{Deserialize, Serialize};
+
+use crate::error::CliError;
+
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    #[serde(default)]
+    pub map: MapConfig,
+    /// The folder of the file, for its relative paths (not part of the TOML).
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapConfig {
+    #[serde(default)]
+    pub import: ImportConfig,
+}
+
+/// `[map.import]`: the same settings as `pipeline map import`'s options, in the same syntax.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImportConfig {
+    pub profile: Option<String>,
+    pub clip_bbox: Option<String>,
+    pub clip_polygon: Option<PathBuf>,
+    pub driving_side: Option<String>,
+    #[serde(alias = "u-turns")]
+    pub u_turns: Option<String>,
+    pub guess_roundabouts: Option<bool>,
+    pub origin: Option<String>,
+}
+
+impl Config {
+    /// Reads the file, or gives the defaults when there is none.
+    pub fn load(path: Option<&Path>) -> Result<Config> {
+        let Some(path) = path else {
+            return Ok(Config::default());
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            CliError::file(
+                path,
+                format!("cannot read config: {e}"),
+                "check the --config path",
+            )
+        })?;
+        let mut config = Self::parse(&text).map_err(|e| {
+            CliError::file(
+                path,
+                format!("invalid config: {e}"),
+                "see `pipeline --help` and README.md for the keys",
+            )
+        })?;
+        config.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Ok(config)
+    }
+
+    pub fn parse(text: &str) -> std::result::Result<Config, String> {
+        toml::from_str(text).map_err(|e| e.message().to_owned())
+    }
+
+    /// A path from the file, made relative to the file's folder.
+    pub fn resolve(&self, p: &Path) -> PathBuf {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.base_dir.join(p)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_map_import_defaults_and_rejects_typos() -> Result<(), String> {
+        let c = Config::parse(
+            "[map.import]\nprofile = \"all\"\nu_turns = \"never\"\nguess_roundabouts = false\n",
+        )?;
+        assert_eq!(c.map.import.profile.as_deref(), Some("all"));
+        assert_eq!(c.map.import.guess_roundabouts, Some(false));
+        assert!(Config::parse("[map.import]\nprofiel = \"all\"\n").is_err());
+        assert!(Config::parse("[mapp]\n").is_err());
+        assert_eq!(Config::parse(""), Ok(Config::default()));
+        Ok(())
+    }
+}

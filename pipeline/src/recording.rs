@@ -1,0 +1,316 @@
+//! The rerun recording of a command (rerun 0.36 SDK).
+//!
+//! One recording per command, application id `pipeline`. With `--rerun save` it is written to
+//! `recording.rrd` in the command's (temporary) output folder; [`Recording::finish`] flushes
+//! and closes it, which must happen before the folder is renamed into place, or the file
+//! would be cut short. Maps are logged static under `world/map/...` in 3D (z up, metres of
+//! the map's local frame), so the viewer shows them as a ground plane:
+//!
+//! | entity | what |
+//! | --- | --- |
+//! | `world/map/lanes` | lane centre lines, coloured by road class |
+//! | `world/map/lane_boundaries` | left and right lane edges |
+//! | `world/map/junctions` | junction area outlines |
+//! | `world/map/roundabouts` | the rings of circulating lanes, labelled |
+//! | `world/map/stop_lines` | stop and give-way lines, red |
+//! | `world/map/markings` | centre lines (yellow), lane dividers and edges (white) |
+//!
+//! A recording's bytes are not reproducible (rerun stamps chunk ids and times), unlike the
+//! other outputs.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use maps::geometry::Point;
+use maps::{Map, MarkingKind, StopKind};
+use rerun::{Color, LineStrips3D, Radius, RecordingStream, RecordingStreamBuilder};
+
+use crate::cli::RerunMode;
+use crate::error::CliError;
+
+/// File name of the recording inside an output folder.
+pub const RECORDING_FILE: &str = "recording.rrd";
+
+/// An open recording (or none, with `--rerun off`).
+#[derive(Debug)]
+pub struct Recording {
+    stream: Option<RecordingStream>,
+    mode: RerunMode,
+}
+
+impl Recording {
+    /// Opens the recording `mode` asks for. `save_dir` is the folder an `.rrd` goes into with
+    /// `--rerun save`; commands without an output folder pass None and record nothing then.
+    pub fn open(mode: &RerunMode, save_dir: Option<&Path>) -> Result<Recording> {
+        let builder = || RecordingStreamBuilder::new("pipeline").enabled(true);
+        let stream = match mode {
+            RerunMode::Off => None,
+            RerunMode::Save => match save_dir {
+                None => None,
+                Some(dir) => {
+                    let path = dir.join(RECORDING_FILE);
+                    Some(builder().save(&path).map_err(|e| {
+                        CliError::file(
+                            &path,
+                            format!("cannot write the rerun recording: {e}"),
+                            "use --rerun off to skip it",
+                        )
+                    })?)
+                }
+            },
+            RerunMode::Spawn => Some(builder().spawn().map_err(|e| {
+                CliError::new(
+                    format!("cannot start the rerun viewer: {e}"),
+                    "install it with `pip install rerun-sdk==0.36.3`, or use --rerun save",
+                )
+            })?),
+            RerunMode::Connect(url) => {
+                Some(builder().connect_grpc_opts(url.clone()).map_err(|e| {
+                    CliError::new(
+                        format!("cannot connect to the rerun viewer at {url}: {e}"),
+                        "start a viewer with `rerun`, check the address, or use --rerun save",
+                    )
+                })?)
+            }
+        };
+        Ok(Recording {
+            stream,
+            mode: mode.clone(),
+        })
+    }
+
+    pub fn is_on(&self) -> bool {
+        self.stream.is_some()
+    }
+
+    /// The stream, for logging.
+    pub fn stream(&self) -> Option<&RecordingStream> {
+        self.stream.as_ref()
+    }
+
+    /// Flushes everything and closes the sink (writes the `.rrd` footer).
+    pub fn finish(mut self) -> Result<()> {
+        if let Some(stream) = self.stream.take() {
+            stream.flush_blocking().map_err(|e| match &self.mode {
+                RerunMode::Connect(url) => CliError::new(
+                    format!("rerun viewer at {url}: {e}"),
+                    "start a viewer first (`rerun`), check the address, or use --rerun save",
+                ),
+                RerunMode::Spawn => CliError::new(
+                    format!("rerun viewer: {e}"),
+                    "check that `rerun` starts (pip install rerun-sdk==0.36.3), or use --rerun save",
+                ),
+                RerunMode::Save | RerunMode::Off => CliError::new(
+                    format!("{RECORDING_FILE}: cannot finish the rerun recording: {e}"),
+                    "check free disk space, or use --rerun off",
+                ),
+            })?;
+            // Dropping the last handle joins the batcher and the file writer.
+            drop(stream);
+        }
+        Ok(())
+    }
+}
+
+/// Height of each layer above the ground, so overlapping lines do not flicker.
+const Z_LANES: f32 = 0.0;
+const Z_BOUNDARIES: f32 = 0.01;
+const Z_JUNCTIONS: f32 = 0.02;
+const Z_MARKINGS: f32 = 0.03;
+const Z_ROUNDABOUTS: f32 = 0.04;
+const Z_STOP_LINES: f32 = 0.05;
+
+fn strip(points: &[Point], z: f32) -> Vec<[f32; 3]> {
+    points.iter().map(|p| [p.x as f32, p.y as f32, z]).collect()
+}
+
+fn closed(points: &[Point], z: f32) -> Vec<[f32; 3]> {
+    let mut s = strip(points, z);
+    if let Some(&first) = s.first() {
+        s.push(first);
+    }
+    s
+}
+
+/// Colour of a road class: big roads warm, small roads cool.
+fn class_color(highway: &str) -> Color {
+    let base = highway.trim_end_matches("_link");
+    match base {
+        "motorway" => Color::from_rgb(230, 80, 80),
+        "trunk" => Color::from_rgb(240, 130, 70),
+        "primary" => Color::from_rgb(250, 170, 60),
+        "secondary" => Color::from_rgb(240, 210, 80),
+        "tertiary" => Color::from_rgb(200, 220, 120),
+        "residential" | "unclassified" | "road" => Color::from_rgb(140, 180, 230),
+        "living_street" => Color::from_rgb(150, 210, 200),
+        "service" => Color::from_rgb(150, 150, 170),
+        "lanelet" => Color::from_rgb(90, 200, 230),
+        _ => Color::from_rgb(120, 200, 120),
+    }
+}
+
+/// Logs a map under `world/map/...`, static.
+pub fn log_map(rec: &RecordingStream, map: &Map) -> Result<()> {
+    let err = |what: &str| format!("rerun: cannot log {what}");
+    rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())
+        .with_context(|| err("world"))?;
+
+    let lanes: Vec<_> = map.lanes.values().filter(|l| l.centre.len() >= 2).collect();
+    let colors: Vec<Color> = lanes
+        .iter()
+        .map(|l| {
+            map.roads
+                .get(&l.road)
+                .map_or(Color::from_rgb(200, 200, 200), |r| class_color(&r.highway))
+        })
+        .collect();
+    rec.log_static(
+        "world/map/lanes",
+        &LineStrips3D::new(lanes.iter().map(|l| strip(&l.centre, Z_LANES)))
+            .with_colors(colors)
+            .with_radii([Radius::new_scene_units(0.15)]),
+    )
+    .with_context(|| err("lanes"))?;
+
+    let boundaries = map
+        .lanes
+        .values()
+        .flat_map(|l| [&l.left, &l.right])
+        .filter(|b| b.len() >= 2);
+    rec.log_static(
+        "world/map/lane_boundaries",
+        &LineStrips3D::new(boundaries.map(|b| strip(b, Z_BOUNDARIES)))
+            .with_colors([Color::from_rgb(110, 110, 110)])
+            .with_radii([Radius::new_scene_units(0.05)]),
+    )
+    .with_context(|| err("lane boundaries"))?;
+
+    let junctions = map.junctions.values().filter(|j| j.polygon.len() >= 3);
+    rec.log_static(
+        "world/map/junctions",
+        &LineStrips3D::new(junctions.map(|j| closed(&j.polygon, Z_JUNCTIONS)))
+            .with_colors([Color::from_rgb(250, 220, 40)])
+            .with_radii([Radius::new_scene_units(0.1)]),
+    )
+    .with_context(|| err("junctions"))?;
+
+    let mut rings = Vec::new();
+    let mut labels = Vec::new();
+    for r in map.roundabouts.values() {
+        let mut ring: Vec<Point> = Vec::new();
+        for lane in r
+            .circulating_lanes
+            .iter()
+            .filter_map(|id| map.lanes.get(id))
+        {
+            ring.extend_from_slice(&lane.centre);
+        }
+        if ring.len() >= 2 {
+            rings.push(strip(&ring, Z_ROUNDABOUTS));
+            let guessed = if r.source == maps::RoundaboutSource::Guessed {
+                ", guessed"
+            } else {
+                ""
+            };
+            labels.push(format!(
+                "roundabout {} ({} entries, {} exits{guessed})",
+                r.id,
+                r.entries.len(),
+                r.exits.len()
+            ));
+        }
+    }
+    rec.log_static(
+        "world/map/roundabouts",
+        &LineStrips3D::new(rings)
+            .with_labels(labels)
+            .with_colors([Color::from_rgb(220, 60, 220)])
+            .with_radii([Radius::new_scene_units(0.4)]),
+    )
+    .with_context(|| err("roundabouts"))?;
+
+    let stops: Vec<_> = map
+        .stop_lines
+        .values()
+        .filter(|s| s.line.len() >= 2)
+        .collect();
+    let stop_colors: Vec<Color> = stops
+        .iter()
+        .map(|s| match s.kind {
+            StopKind::Stop => Color::from_rgb(230, 20, 20),
+            StopKind::GiveWay => Color::from_rgb(255, 90, 60),
+        })
+        .collect();
+    rec.log_static(
+        "world/map/stop_lines",
+        &LineStrips3D::new(stops.iter().map(|s| strip(&s.line, Z_STOP_LINES)))
+            .with_colors(stop_colors)
+            .with_radii([Radius::new_scene_units(0.25)]),
+    )
+    .with_context(|| err("stop lines"))?;
+
+    let markings: Vec<_> = map.markings.iter().filter(|m| m.line.len() >= 2).collect();
+    let marking_colors: Vec<Color> = markings
+        .iter()
+        .map(|m| match m.kind {
+            MarkingKind::CentreLine => Color::from_rgb(250, 200, 0),
+            MarkingKind::Dashed => Color::from_rgb(235, 235, 235),
+            MarkingKind::SolidEdge => Color::from_rgb(255, 255, 255),
+        })
+        .collect();
+    rec.log_static(
+        "world/map/markings",
+        &LineStrips3D::new(markings.iter().map(|m| strip(&m.line, Z_MARKINGS)))
+            .with_colors(marking_colors)
+            .with_radii([Radius::new_scene_units(0.06)]),
+    )
+    .with_context(|| err("markings"))?;
+    Ok(())
+}
+
+/// Logs a route's path under `world/route`.
+pub fn log_route(rec: &RecordingStream, points: &[Point]) -> Result<()> {
+    rec.log_static(
+        "world/route",
+        &LineStrips3D::new([strip(points, 0.1)])
+            .with_colors([Color::from_rgb(40, 230, 90)])
+            .with_radii([Radius::new_scene_units(0.5)]),
+    )
+    .context("rerun: cannot log the route")?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn saving_writes_an_rrd_that_starts_like_one() -> Result<()> {
+        let dir = tempfile::tempdir()?;
+        let rec = Recording::open(&RerunMode::Save, Some(dir.path()))?;
+        assert!(rec.is_on());
+        let map = Map::new(
+            maps::Projection::local(maps::LatLon::new(0.0, 0.0)),
+            maps::DrivingSide::Right,
+            "car",
+        );
+        if let Some(stream) = rec.stream() {
+            log_map(stream, &map)?;
+        }
+        rec.finish()?;
+        let bytes = std::fs::read(dir.path().join(RECORDING_FILE))?;
+        assert!(
+            bytes.starts_with(b"RRF2") || bytes.starts_with(b"RRIO"),
+            "{:?}",
+            &bytes[..bytes.len().min(8)]
+        );
+        Ok(())
+    }
+
+    #[test]
+    fn off_and_folderless_save_record_nothing() -> Result<()> {
+        assert!(!Recording::open(&RerunMode::Off, None)?.is_on());
+        assert!(!Recording::open(&RerunMode::Save, None)?.is_on());
+        Ok(())
+    }
+}

@@ -1,0 +1,112 @@
+//! Helpers shared by the end-to-end tests of the `pipeline` binary.
+//!
+//! Real data lives in `../shared/data` beside the repository; tests that need it print a
+//! `skipped:` notice and pass when it is absent (a user's fresh clone). CI has it.
+
+#![allow(
+    dead_code,
+    clippy::print_stdout,
+    clippy::print_stderr,
+    clippy::unwrap_used
+)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// `../shared/data`, if present.
+pub fn shared_data() -> Option<PathBuf> {
+    let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"));
+    dir.is_dir()
+        .then(|| dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf()))
+}
+
+/// A file under `../shared/data/osm`, or None with a printed notice.
+pub fn osm_file(name: &str) -> Option<PathBuf> {
+    let path = shared_data()?.join("osm").join(name);
+    if path.is_file() {
+        Some(path)
+    } else {
+        println!(
+            "skipped: {} not found (../shared/data is absent)",
+            path.display()
+        );
+        None
+    }
+}
+
+/// The binary under test.
+pub fn pipeline() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_pipeline"));
+    // No viewer, no stdin, no colours: as in CI.
+    cmd.env_remove("RERUN").stdin(std::process::Stdio::null());
+    cmd
+}
+
+/// Runs the binary with `args`.
+pub fn run<I, S>(args: I) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    pipeline()
+        .args(args)
+        .output()
+        .expect("the pipeline binary runs")
+}
+
+pub fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+pub fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Fails the test with the command's output when it did not succeed.
+pub fn assert_success(out: &Output, what: &str) {
+    assert!(
+        out.status.success(),
+        "{what} failed ({}):\nstdout:\n{}\nstderr:\n{}",
+        out.status,
+        stdout(out),
+        stderr(out)
+    );
+}
+
+/// A small valid OSM XML: a residential cross of four ways meeting at node 5, plus a
+/// footway. Enough for an import that needs no shared data.
+pub const SMALL_OSM: &str = r#"<?xml version="1.0" encoding="UTF-8"?>
+<osm version="0.6" generator="hand">
+  <node id="1" lat="42.0550" lon="-87.6760"/>
+  <node id="2" lat="42.0570" lon="-87.6760"/>
+  <node id="3" lat="42.0560" lon="-87.6775"/>
+  <node id="4" lat="42.0560" lon="-87.6745"/>
+  <node id="5" lat="42.0560" lon="-87.6760"/>
+  <node id="6" lat="42.0555" lon="-87.6750"/>
+  <node id="7" lat="42.0565" lon="-87.6750"/>
+  <way id="10"><nd ref="1"/><nd ref="5"/><tag k="highway" v="residential"/><tag k="name" v="South Street"/></way>
+  <way id="11"><nd ref="5"/><nd ref="2"/><tag k="highway" v="residential"/><tag k="name" v="North Street"/></way>
+  <way id="12"><nd ref="3"/><nd ref="5"/><tag k="highway" v="residential"/></way>
+  <way id="13"><nd ref="5"/><nd ref="4"/><tag k="highway" v="tertiary"/><tag k="lanes" v="2"/></way>
+  <way id="14"><nd ref="6"/><nd ref="7"/><tag k="highway" v="footway"/></way>
+</osm>
+"#;
+
+/// Names of the entries of a folder, sorted.
+pub fn entries(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    names
+}
+
+/// Reads a JSON file.
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}

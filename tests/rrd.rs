@@ -1,0 +1,96 @@
+//! The `.rrd` of an import is readable by rerun's own tooling (`rerun rrd verify` and
+//! `rerun rrd print` of rerun-sdk 0.36.3) and holds the `world/map/...` entities. Skipped
+//! with a notice when the `rerun` executable is not installed; CI installs it.
+
+#![allow(clippy::print_stdout, clippy::print_stderr, clippy::unwrap_used)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::*;
+
+fn rerun_cli() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|dir| dir.join("rerun"))
+        .find(|p| p.is_file())
+}
+
+fn rerun(exe: &Path, args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(exe)
+        .args(args)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("the rerun executable runs")
+}
+
+#[test]
+fn recording_is_readable_by_rerun_and_shows_the_map() {
+    let Some(exe) = rerun_cli() else {
+        println!("skipped: rerun CLI not installed");
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    // Real data when present (a roundabout and stop lines), the small cross otherwise.
+    let input = match osm_file("montlake_roundabout.osm.pbf") {
+        Some(p) => p,
+        None => {
+            let p = tmp.path().join("cross.osm");
+            std::fs::write(&p, SMALL_OSM).unwrap();
+            p
+        }
+    };
+    let out = tmp.path().join("map");
+    let result = run([
+        std::ffi::OsString::from("map"),
+        "import".into(),
+        input.into(),
+        "--out".into(),
+        out.clone().into(),
+    ]);
+    assert_success(&result, "map import");
+    let rrd = out.join("recording.rrd");
+    assert!(rrd.is_file());
+
+    let verify = rerun(&exe, &["rrd".as_ref(), "verify".as_ref(), rrd.as_os_str()]);
+    assert!(
+        verify.status.success(),
+        "rerun rrd verify failed:\n{}\n{}",
+        stdout(&verify),
+        stderr(&verify)
+    );
+
+    let print = rerun(
+        &exe,
+        &[
+            "rrd".as_ref(),
+            "print".as_ref(),
+            "-v".as_ref(),
+            rrd.as_os_str(),
+        ],
+    );
+    let text = format!("{}{}", stdout(&print), stderr(&print));
+    assert!(print.status.success(), "rerun rrd print failed:\n{text}");
+    for entity in [
+        "world/map/lanes",
+        "world/map/lane_boundaries",
+        "world/map/junctions",
+        "world/map/markings",
+    ] {
+        assert!(
+            text.contains(entity),
+            "`{entity}` missing from rerun rrd print:\n{text}"
+        );
+    }
+    if text.contains("montlake") || input_has_roundabout(&out) {
+        assert!(text.contains("world/map/roundabouts"), "{text}");
+    }
+}
+
+fn input_has_roundabout(out: &Path) -> bool {
+    read_json(&out.join("summary.json"))["roundabouts"]
+        .as_array()
+        .is_some_and(|r| !r.is_empty())
+}
