@@ -1,0 +1,114 @@
+#!/usr/bin/env python3
+"""Times `pipeline map import` against SUMO netconvert 1.15 on the same files, in one run.
+
+For each file: one untimed warm-up of each tool, then RUNS timed runs of each, alternating
+(ours, netconvert, ours, ...) so both see the same machine state; the figure is the median
+wall time of the whole process (time.perf_counter around subprocess.run). Ours writes its
+complete output folder (native JSON and binary, GeoJSON, PNG preview, rerun recording,
+summary.json). netconvert runs with the reference options of
+../shared/data/osm/reference/README.md and, as there, reads XML only: a PBF is converted
+with `osmium cat` once beforehand, outside the timing.
+
+Usage (from the repository root, after `cargo build --release -p pipeline`):
+    SUMO_HOME=/usr/share/sumo python3 scripts/bench_map_import.py [--runs 7] [--out docs/benchmarks/map_import.json]
+Needs: netconvert (Debian `sumo`), osmium (Debian `osmium-tool`).
+"""
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT.parent / "shared" / "data" / "osm"
+PIPELINE = ROOT / "target" / "release" / "pipeline"
+CASES = [
+    # (label, our input, netconvert's XML input or None to convert the PBF)
+    ("northwestern_nu (XML)", "northwestern_nu.osm", "northwestern_nu.osm"),
+    ("northwestern_nu (PBF)", "northwestern_nu.osm.pbf", "northwestern_nu.osm"),
+    ("leeds_cycleway (XML)", "leeds_cycleway.osm", "leeds_cycleway.osm"),
+    ("helsinki (PBF)", "helsinki.osm.pbf", None),
+]
+NETCONVERT_OPTS = ["--keep-edges.by-vclass", "passenger", "--roundabouts.guess", "--junctions.join", "--output.street-names"]
+
+
+def timed(cmd, env=None):
+    t = time.perf_counter()
+    r = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    dt = time.perf_counter() - t
+    if r.returncode != 0:
+        sys.exit(f"failed ({r.returncode}): {' '.join(map(str, cmd))}\n{r.stderr.decode(errors='replace')}")
+    return dt
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "map_import.json"))
+    args = ap.parse_args()
+    if args.runs < 5:
+        sys.exit("--runs must be at least 5 (the figure is a median)")
+    for tool in ("netconvert", "osmium"):
+        if not shutil.which(tool):
+            sys.exit(f"{tool} not found: apt-get install sumo osmium-tool")
+    if not PIPELINE.exists():
+        sys.exit(f"{PIPELINE} not found: cargo build --release -p pipeline")
+    env = dict(os.environ, SUMO_HOME=os.environ.get("SUMO_HOME", "/usr/share/sumo"))
+    version = subprocess.run(["netconvert", "--version"], capture_output=True, text=True, env=env).stdout.splitlines()[0]
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for label, ours_in, their_in in CASES:
+            ours_path = DATA / ours_in
+            if their_in is None:
+                their_path = tmp / (ours_in.replace(".osm.pbf", "") + ".osm")
+                subprocess.run(["osmium", "cat", str(ours_path), "-f", "osm", "-o", str(their_path), "--overwrite"], check=True)
+            else:
+                their_path = DATA / their_in
+            n = [0]
+
+            def ours():
+                n[0] += 1
+                return timed([str(PIPELINE), "-q", "map", "import", str(ours_path), "--out", str(tmp / f"ours{n[0]}")])
+
+            def theirs():
+                return timed(["netconvert", "--osm-files", str(their_path), *NETCONVERT_OPTS, "-o", str(tmp / "net.xml")], env)
+
+            ours(), theirs()  # warm-up: file cache, dynamic loader
+            ours_t, their_t = [], []
+            for _ in range(args.runs):
+                ours_t.append(ours())
+                their_t.append(theirs())
+            row = {
+                "case": label,
+                "ours_input": ours_in,
+                "netconvert_input": their_in or f"{ours_in} converted to XML with osmium (not timed)",
+                "ours_median_s": round(statistics.median(ours_t), 4),
+                "netconvert_median_s": round(statistics.median(their_t), 4),
+                "ours_runs_s": [round(x, 4) for x in ours_t],
+                "netconvert_runs_s": [round(x, 4) for x in their_t],
+            }
+            row["speedup"] = round(row["netconvert_median_s"] / row["ours_median_s"], 1)
+            results.append(row)
+            print(f"{label:24s} ours {row['ours_median_s']*1e3:7.1f} ms  netconvert {row['netconvert_median_s']*1e3:7.1f} ms  ratio {row['speedup']:5.1f}x", flush=True)
+    out = {
+        "what": "median wall time of `pipeline -q map import F --out DIR` (all outputs) vs `netconvert --osm-files F.osm " + " ".join(NETCONVERT_OPTS) + " -o net.xml`",
+        "runs": args.runs,
+        "netconvert": version,
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+        "date": time.strftime("%Y-%m-%d"),
+        "results": results,
+    }
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(out, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
