@@ -172,24 +172,30 @@ pub fn direction_at(pts: &[Point], s: f64) -> Point {
     last
 }
 
+/// Closest point to `p` on segment `a`-`b`, and its parameter t in [0, 1] along it.
+pub fn closest_on_segment(a: Point, b: Point, p: Point) -> (Point, f64) {
+    let d = b.sub(a);
+    let len2 = d.dot(d);
+    let t = if len2 > 0.0 {
+        (p.sub(a).dot(d) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (a.add(d.scale(t)), t)
+}
+
 /// Closest point on a polyline: (arc length there, distance to it).
 pub fn project_onto_polyline(pts: &[Point], p: Point) -> (f64, f64) {
     let mut best = (0.0, f64::INFINITY);
     let mut acc = 0.0;
     for w in pts.windows(2) {
-        let d = w[1].sub(w[0]);
-        let len2 = d.dot(d);
-        let t = if len2 > 0.0 {
-            (p.sub(w[0]).dot(d) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let q = w[0].add(d.scale(t));
+        let (q, t) = closest_on_segment(w[0], w[1], p);
+        let seg = w[0].distance(w[1]);
         let dist = q.distance(p);
         if dist < best.1 {
-            best = (acc + t * len2.sqrt(), dist);
+            best = (acc + t * seg, dist);
         }
-        acc += len2.sqrt();
+        acc += seg;
     }
     best
 }

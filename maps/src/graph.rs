@@ -217,6 +217,20 @@ pub(crate) mod test_maps {
     use crate::model::*;
     use crate::projection::{LatLon, Projection};
 
+    /// Imports `../shared/data/osm/<file>` with default options, or prints a skip notice and
+    /// returns None when the data folder is absent (a user's clone).
+    #[allow(clippy::print_stderr, clippy::unwrap_used)]
+    pub fn shared_osm_map(file: &str) -> Option<Map> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/data/osm")
+            .join(file);
+        if !path.exists() {
+            eprintln!("skipped: {} not found", path.display());
+            return None;
+        }
+        Some(crate::build::import_file(&path, &Default::default()).unwrap())
+    }
+
     /// A map of straight one-lane roads: `lanes` are (start, end) of each lane centre
     /// (ids 0, 1, ...; one road per lane, `highway=residential`, 36 km/h, 3.5 m wide), and
     /// `connections` are (from, to) lane indices joined by a straight connection.

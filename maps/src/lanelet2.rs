@@ -372,13 +372,9 @@ fn signed_distance(line: &[Point], p: Point) -> f64 {
     let mut best = (f64::INFINITY, 0.0);
     for w in line.windows(2) {
         let d = w[1].sub(w[0]);
-        let len2 = d.dot(d);
-        let t = if len2 > 0.0 {
-            (p.sub(w[0]).dot(d) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let distance = w[0].add(d.scale(t)).distance(p);
+        let distance = crate::geometry::closest_on_segment(w[0], w[1], p)
+            .0
+            .distance(p);
         if distance < best.0 {
             let side = if d.cross(p.sub(w[0])) >= 0.0 {
                 1.0

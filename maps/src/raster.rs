@@ -831,16 +831,9 @@ mod tests {
     #[test]
     #[allow(clippy::print_stderr)]
     fn northwestern_same_output_with_one_or_two_threads() {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/data/osm/northwestern_nu.osm.pbf"
-        );
-        if !std::path::Path::new(path).exists() {
-            eprintln!("skipped: {path} not found");
+        let Some(map) = crate::graph::test_maps::shared_osm_map("northwestern_nu.osm.pbf") else {
             return;
-        }
-        let map =
-            crate::build::import_file(std::path::Path::new(path), &Default::default()).unwrap();
+        };
         let spec = RasterSpec::covering(map.bounds(), 1.0);
         assert!(spec.len() >= PARALLEL_MIN_PIXELS);
         let run = |threads| {

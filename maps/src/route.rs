@@ -551,19 +551,9 @@ mod tests {
     /// component of northwestern_nu all get a route, every step follows a connection.
     #[test]
     fn northwestern_random_routes() {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/data/osm/northwestern_nu.osm.pbf"
-        );
-        if !std::path::Path::new(path).exists() {
-            eprintln!("skipped: {path} not found");
+        let Some(map) = crate::graph::test_maps::shared_osm_map("northwestern_nu.osm.pbf") else {
             return;
-        }
-        let map = crate::build::import_file(
-            std::path::Path::new(path),
-            &crate::build::ImportOptions::default(),
-        )
-        .unwrap();
+        };
         let comps = crate::graph::strongly_connected_components(&map, true);
         let largest = &comps[0];
         assert!(

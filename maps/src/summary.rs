@@ -260,16 +260,9 @@ mod tests {
     #[test]
     #[allow(clippy::print_stderr)]
     fn tiny_roundabout_has_one_tagged_roundabout() {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/data/osm/tiny_roundabout.osm"
-        );
-        if !std::path::Path::new(path).exists() {
-            eprintln!("skipped: {path} not found");
+        let Some(map) = crate::graph::test_maps::shared_osm_map("tiny_roundabout.osm") else {
             return;
-        }
-        let map =
-            crate::build::import_file(std::path::Path::new(path), &Default::default()).unwrap();
+        };
         let s = summarize(&map);
         assert_eq!(s.roundabouts.len(), 1);
         let r = &s.roundabouts[0];

@@ -258,11 +258,7 @@ mod tests {
     use super::*;
 
     fn tags(pairs: &[(&str, &str)]) -> Tags {
-        let mut t = Tags::default();
-        for (k, v) in pairs {
-            t.insert((*k).into(), (*v).into());
-        }
-        t
+        Tags::from_pairs(pairs)
     }
 
     #[test]

@@ -24,6 +24,14 @@ pub use xml::{parse_xml, read_xml};
 pub struct Tags(pub Vec<(String, String)>);
 
 impl Tags {
+    /// Tags from `(key, value)` pairs (later pairs win), handy in code and tests.
+    pub fn from_pairs(pairs: &[(&str, &str)]) -> Self {
+        let mut t = Tags::default();
+        for (k, v) in pairs {
+            t.insert((*k).to_owned(), (*v).to_owned());
+        }
+        t
+    }
     pub fn get(&self, key: &str) -> Option<&str> {
         self.0
             .iter()
