@@ -9,13 +9,9 @@
 //! [`MapError::Version`] instead of being half-read, so a stale map is re-imported rather than
 //! misread.
 //!
-//! Why the binary payload is a value tree and not the `Map` itself: postcard is not
-//! self-describing, and the model uses internally tagged enums (`"kind": ...`) so that its JSON
-//! reads well; serde can only read those back from a format that describes itself
-//! (`deserialize_any`). The payload is therefore the map's serde data model written as a small
-//! tagged tree (object keys interned in a table, numbers as fixed-width values), which postcard
-//! encodes compactly and which reads back into any model shape serde can express. Floats are
-//! stored bit for bit, so a binary round trip is exact.
+//! The model avoids internally tagged enums so that postcard, which is not self-describing,
+//! can read the binary form back directly; floats are stored bit for bit, so a binary round
+//! trip is exact.
 
 use std::path::Path;
 
@@ -42,17 +38,10 @@ pub fn to_json_bytes(map: &Map) -> Result<Vec<u8>, MapError> {
 
 /// The map as binary bytes: magic, version, postcard payload.
 pub fn to_binary_bytes(map: &Map) -> Result<Vec<u8>, MapError> {
-    let value = serde_json::to_value(map).map_err(|e| MapError::Serialise(e.to_string()))?;
-    let mut keys = KeyTable::default();
-    let root = Node::from_value(&value, &mut keys);
-    let payload = Payload {
-        keys: keys.names,
-        root,
-    };
     let mut out = Vec::with_capacity(64 * 1024);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&map.format_version.to_le_bytes());
-    let out = postcard::to_extend(&payload, out).map_err(|e| MapError::Serialise(e.to_string()))?;
+    let out = postcard::to_extend(map, out).map_err(|e| MapError::Serialise(e.to_string()))?;
     Ok(out)
 }
 
@@ -64,14 +53,9 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<(Map, MapFileForm), MapEr
         };
         let found = u32::from_le_bytes(*version);
         check_version(found)?;
-        let payload: Payload = postcard::from_bytes(payload).map_err(|e| MapError::Parse {
+        let map: Map = postcard::from_bytes(payload).map_err(|e| MapError::Parse {
             path: Some(path.to_path_buf()),
             message: format!("corrupt binary map file: {e}"),
-        })?;
-        let value = payload.root.into_value(&payload.keys, path)?;
-        let map: Map = serde_json::from_value(value).map_err(|e| MapError::Parse {
-            path: Some(path.to_path_buf()),
-            message: format!("binary map file does not hold a map: {e}"),
         })?;
         check_version(map.format_version)?;
         return Ok((map, MapFileForm::Binary));
@@ -139,123 +123,6 @@ pub fn load(path: &Path) -> Result<Map, MapError> {
 pub fn load_with_form(path: &Path) -> Result<(Map, MapFileForm), MapError> {
     let bytes = std::fs::read(path).map_err(|e| MapError::io(path, e))?;
     from_bytes(&bytes, path)
-}
-
-#[derive(Debug, Serialize, Deserialize)]
-struct Payload {
-    /// Object keys, each stored once.
-    keys: Vec<String>,
-    root: Node,
-}
-
-/// serde's data model as serde_json holds it, with keys replaced by indices into the table.
-#[derive(Debug, Serialize, Deserialize)]
-enum Node {
-    Null,
-    Bool(bool),
-    U64(u64),
-    I64(i64),
-    /// The bit pattern, so the value comes back exactly.
-    F64(u64),
-    Str(String),
-    Seq(Vec<Node>),
-    Obj(Vec<(u32, Node)>),
-}
-
-#[derive(Debug, Default)]
-struct KeyTable {
-    names: Vec<String>,
-    index: std::collections::HashMap<String, u32>,
-}
-
-impl KeyTable {
-    fn intern(&mut self, key: &str) -> u32 {
-        if let Some(&i) = self.index.get(key) {
-            return i;
-        }
-        // Insertion order is the traversal order of a deterministic value: stable bytes.
-        let i = u32::try_from(self.names.len()).unwrap_or(u32::MAX);
-        self.names.push(key.to_owned());
-        self.index.insert(key.to_owned(), i);
-        i
-    }
-}
-
-impl Node {
-    fn from_value(value: &serde_json::Value, keys: &mut KeyTable) -> Node {
-        use serde_json::Value;
-        match value {
-            Value::Null => Node::Null,
-            Value::Bool(b) => Node::Bool(*b),
-            Value::Number(n) => {
-                if let Some(u) = n.as_u64() {
-                    Node::U64(u)
-                } else if let Some(i) = n.as_i64() {
-                    Node::I64(i)
-                } else {
-                    Node::F64(n.as_f64().unwrap_or(f64::NAN).to_bits())
-                }
-            }
-            Value::String(s) => Node::Str(s.clone()),
-            Value::Array(items) => {
-                Node::Seq(items.iter().map(|v| Node::from_value(v, keys)).collect())
-            }
-            Value::Object(fields) => {
-                // Sorted, so the bytes do not depend on whether serde_json keeps insertion
-                // order (its `preserve_order` feature, which another crate may switch on).
-                let mut sorted: Vec<(&String, &Value)> = fields.iter().collect();
-                sorted.sort_by(|a, b| a.0.cmp(b.0));
-                Node::Obj(
-                    sorted
-                        .into_iter()
-                        .map(|(k, v)| (keys.intern(k), Node::from_value(v, keys)))
-                        .collect(),
-                )
-            }
-        }
-    }
-
-    fn into_value(self, keys: &[String], path: &Path) -> Result<serde_json::Value, MapError> {
-        use serde_json::Value;
-        Ok(match self {
-            Node::Null => Value::Null,
-            Node::Bool(b) => Value::Bool(b),
-            Node::U64(u) => Value::from(u),
-            Node::I64(i) => Value::from(i),
-            Node::F64(bits) => {
-                let f = f64::from_bits(bits);
-                match serde_json::Number::from_f64(f) {
-                    Some(n) => Value::Number(n),
-                    None => {
-                        return Err(MapError::invalid(
-                            path,
-                            "binary map file holds a non-finite number",
-                        ));
-                    }
-                }
-            }
-            Node::Str(s) => Value::String(s),
-            Node::Seq(items) => Value::Array(
-                items
-                    .into_iter()
-                    .map(|n| n.into_value(keys, path))
-                    .collect::<Result<_, _>>()?,
-            ),
-            Node::Obj(fields) => {
-                let mut object = serde_json::Map::new();
-                for (k, v) in fields {
-                    let Some(name) = keys.get(k as usize) else {
-                        return Err(MapError::invalid(
-                            path,
-                            "corrupt binary map file: bad key index",
-                        ));
-                    };
-                    object.insert(name.clone(), v.into_value(keys, path)?);
-                }
-                Value::Object(object)
-            }
-        })
-    }
 }
 
 #[cfg(test)]

@@ -62,7 +62,9 @@ pub enum Direction {
 
 /// Where a road came from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+// Externally tagged (`{"local": {...}}`): the binary form (postcard) can read it back,
+// which it cannot for internally tagged enums.
+#[serde(rename_all = "snake_case")]
 pub enum RoadSource {
     /// An OSM way (or a piece of one, split at shared nodes).
     OsmWay,
@@ -224,7 +226,9 @@ pub enum StopKind {
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+// Externally tagged (`{"local": {...}}`): the binary form (postcard) can read it back,
+// which it cannot for internally tagged enums.
+#[serde(rename_all = "snake_case")]
 pub enum StopLineSource {
     /// A `highway=stop` / `highway=give_way` node.
     OsmNode { id: i64 },

@@ -88,7 +88,13 @@ pub fn render_preview_png(map: &Map, max_size_px: u32) -> Result<Vec<u8>, MapErr
     }
     let mut png = Vec::new();
     image::ImageEncoder::write_image(
-        image::codecs::png::PngEncoder::new(&mut png),
+        // Fast compression: the preview is mostly flat colour, so it still compresses well,
+        // and the default level would cost more than the whole import.
+        image::codecs::png::PngEncoder::new_with_quality(
+            &mut png,
+            image::codecs::png::CompressionType::Fast,
+            image::codecs::png::FilterType::Sub,
+        ),
         &rgb,
         spec.width,
         spec.height,

@@ -34,7 +34,9 @@ impl LatLon {
 
 /// How a map's metric frame relates to WGS84. Stored in every map.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+// Externally tagged (`{"local": {...}}`): the binary form (postcard) can read it back,
+// which it cannot for internally tagged enums.
+#[serde(rename_all = "snake_case")]
 pub enum Projection {
     /// Transverse Mercator on the origin's meridian, scale 1, origin at (0, 0).
     Local { origin: LatLon },

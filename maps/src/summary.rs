@@ -55,7 +55,7 @@ pub struct MapSummary {
     pub roundabouts: Vec<RoundaboutSummary>,
     /// What the import skipped, as counts.
     pub skipped: SkippedSummary,
-    /// The map's projection: `kind` (`local` or `utm`), `origin` {`lat`, `lon`} and, for UTM, `zone`.
+    /// The map's projection: `{"local": {"origin": {"lat", "lon"}}}` or `{"utm": {"origin", "zone"}}`.
     pub projection: Projection,
     /// `right` or `left`.
     pub driving_side: DrivingSide,

@@ -38,7 +38,7 @@ const IMPORT_MARKERS: Markers = &[SUMMARY_JSON, MAP_JSON, MAP_BIN];
 const MAX_SNAP_DISTANCE_M: f64 = 100.0;
 
 /// Longer side of `preview.png`, pixels.
-const PREVIEW_MAX_PX: u32 = 2048;
+const PREVIEW_MAX_PX: u32 = 1024;
 
 pub fn run(ctx: &Context<'_>, command: &MapCommand) -> Result<()> {
     match command {
@@ -269,9 +269,10 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
 
     let mut progress = ctx.ui.progress("map import");
     progress.step(&format!("reading {}", input.display()));
-    let (bytes, sha256) = sha256_file(input)?;
-    let (osm, format) =
-        maps::osm::read_osm_file(input).map_err(|e| map_error(input, e, FileRole::OsmInput))?;
+    // Hashing the input for summary.json costs as much as parsing it: do both at once.
+    let (hashed, parsed) = rayon::join(|| sha256_file(input), || maps::osm::read_osm_file(input));
+    let (osm, format) = parsed.map_err(|e| map_error(input, e, FileRole::OsmInput))?;
+    let (bytes, sha256) = hashed?;
     let lanelet2 = osm.is_lanelet2();
     progress.note(&format!(
         "{} nodes, {} ways, {} relations{}",
@@ -317,17 +318,23 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
 
     progress.step(&format!("writing {}", out.display()));
     let dir = AtomicDir::create(&out, IMPORT_MARKERS)?;
-    write_outputs(dir.path(), &map, &summary, &input_info, record)?;
-
-    // Before the rename: the .rrd must be complete when the folder appears.
-    if ctx.cli.rerun != RerunMode::Off {
-        progress.step("recording for rerun");
-        let rec = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
-        if let Some(stream) = rec.stream() {
-            recording::log_map(stream, &map)?;
-        }
-        rec.finish()?;
-    }
+    // The recording is independent of the files: log it while they are encoded. It is
+    // finished (flushed, closed) before the rename, so the .rrd is complete when the folder appears.
+    let (written, recorded) = rayon::join(
+        || write_outputs(dir.path(), &map, &summary, &input_info, record),
+        || -> Result<()> {
+            if ctx.cli.rerun == RerunMode::Off {
+                return Ok(());
+            }
+            let rec = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
+            if let Some(stream) = rec.stream() {
+                recording::log_map(stream, &map)?;
+            }
+            rec.finish()
+        },
+    );
+    written?;
+    recorded?;
     let dest = dir.commit()?;
     drop(progress);
 
@@ -376,18 +383,20 @@ fn write_outputs(
         })
     };
     let ser = |e: maps::MapError| map_error(dir, e, FileRole::Output);
-    write(MAP_JSON, &maps::io::to_json_bytes(map).map_err(ser)?)?;
-    write(MAP_BIN, &maps::io::to_binary_bytes(map).map_err(ser)?)?;
-    write(
-        MAP_GEOJSON,
-        maps::geojson::to_geojson_string(map)
-            .map_err(ser)?
-            .as_bytes(),
-    )?;
-    write(
-        PREVIEW_PNG,
-        &maps::preview::render_preview_png(map, PREVIEW_MAX_PX).map_err(ser)?,
-    )?;
+    // The four encodings are independent: make them side by side, then write in a fixed order.
+    let ((json, bin), (geojson, png)) = rayon::join(
+        || (maps::io::to_json_bytes(map), maps::io::to_binary_bytes(map)),
+        || {
+            (
+                maps::geojson::to_geojson_string(map),
+                maps::preview::render_preview_png(map, PREVIEW_MAX_PX),
+            )
+        },
+    );
+    write(MAP_JSON, &json.map_err(ser)?)?;
+    write(MAP_BIN, &bin.map_err(ser)?)?;
+    write(MAP_GEOJSON, geojson.map_err(ser)?.as_bytes())?;
+    write(PREVIEW_PNG, &png.map_err(ser)?)?;
     let file = SummaryFile {
         summary,
         input,
