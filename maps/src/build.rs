@@ -74,7 +74,8 @@ pub struct ImportOptions {
     /// Projection origin. None: the centre of the selected roads (OSM), or (0, 0) with
     /// Lanelet2's UTM convention (Lanelet2, as the INTERACTION dataset does).
     pub origin: Option<LatLon>,
-    /// Run `check_invariants` after every transformation (cheap; on by default).
+    /// Run `check_invariants` after every transformation (on by default, and in every test);
+    /// when off, the finished map is still checked once.
     pub check_invariants: bool,
 }
 
@@ -101,11 +102,16 @@ pub fn import_file(path: &Path, options: &ImportOptions) -> Result<Map, MapError
 /// Imports parsed OSM data: Lanelet2 maps (with `type=lanelet` relations) through
 /// [`crate::lanelet2`], everything else through the OSM road pipeline.
 pub fn import_osm(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError> {
-    if osm.is_lanelet2() {
-        crate::lanelet2::build_lanelet2_map(osm, options)
+    let map = if osm.is_lanelet2() {
+        crate::lanelet2::build_lanelet2_map(osm, options)?
     } else {
-        build_osm_map(osm, options)
+        build_osm_map(osm, options)?
+    };
+    // Without the check after every step, the finished map is still checked once.
+    if !options.check_invariants {
+        crate::invariants::check_invariants(&map, "import")?;
     }
+    Ok(map)
 }
 
 fn build_osm_map(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError> {

@@ -157,6 +157,11 @@ pub struct ImportArgs {
     #[arg(long)]
     pub no_guess_roundabouts: bool,
 
+    /// Check the map's invariants after every import step, not only at the end (slower;
+    /// the tests always do).
+    #[arg(long)]
+    pub check_every_step: bool,
+
     /// Projection origin [default: centre of the selected roads; (0, 0) UTM for Lanelet2].
     #[arg(long, value_name = "LAT,LON")]
     pub origin: Option<String>,

@@ -372,3 +372,118 @@ fn group_by_junctions(map: &crate::model::Map, roads: &[RoadId]) -> Vec<Vec<Road
     }
     groups.into_values().collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::model::RoundaboutSource;
+    use crate::{ImportOptions, import_osm};
+
+    /// OSM XML with a one-way loop through `ring` (metres around 50° N 10° E, drawn in
+    /// order and closed) and a two-way residential arm leaving from each ring node in `arms`.
+    fn loop_with_arms(ring: &[(f64, f64)], arms: &[usize], ring_tags: &str) -> String {
+        let to_deg = |(x, y): (f64, f64)| {
+            (
+                50.0 + y / 111_320.0,
+                10.0 + x / (111_320.0 * 50f64.to_radians().cos()),
+            )
+        };
+        let mut xml = String::from("<osm version=\"0.6\">\n");
+        for (i, p) in ring.iter().enumerate() {
+            let (lat, lon) = to_deg(*p);
+            xml += &format!(
+                "<node id=\"{}\" lat=\"{lat:.7}\" lon=\"{lon:.7}\"/>\n",
+                i + 1
+            );
+        }
+        for (k, &i) in arms.iter().enumerate() {
+            let (x, y) = ring[i];
+            let n = (x * x + y * y).sqrt();
+            let (lat, lon) = to_deg((x + 100.0 * x / n, y + 100.0 * y / n));
+            xml += &format!(
+                "<node id=\"{}\" lat=\"{lat:.7}\" lon=\"{lon:.7}\"/>\n",
+                100 + k
+            );
+            xml += &format!(
+                "<way id=\"{}\"><nd ref=\"{}\"/><nd ref=\"{}\"/><tag k=\"highway\" v=\"residential\"/></way>\n",
+                200 + k,
+                i + 1,
+                100 + k
+            );
+        }
+        xml += "<way id=\"1\">";
+        for i in 0..=ring.len() {
+            xml += &format!("<nd ref=\"{}\"/>", i % ring.len() + 1);
+        }
+        xml += &format!(
+            "<tag k=\"highway\" v=\"residential\"/><tag k=\"oneway\" v=\"yes\"/>{ring_tags}</way>\n</osm>\n"
+        );
+        xml
+    }
+
+    fn import(xml: &str) -> crate::Map {
+        let osm = crate::osm::parse_xml(xml.as_bytes()).expect("test XML parses");
+        import_osm(&osm, &ImportOptions::default()).expect("imports")
+    }
+
+    fn circle(r: f64, n: usize) -> Vec<(f64, f64)> {
+        (0..n)
+            .map(|i| {
+                let a = std::f64::consts::TAU * i as f64 / n as f64;
+                (r * a.cos(), r * a.sin())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn untagged_circular_one_way_loop_is_a_guessed_roundabout() {
+        let map = import(&loop_with_arms(&circle(20.0, 12), &[0, 4, 8], ""));
+        assert_eq!(map.roundabouts.len(), 1);
+        let r = map.roundabouts.values().next().expect("one");
+        assert_eq!(r.source, RoundaboutSource::Guessed);
+        assert_eq!(
+            (r.entries.len(), r.exits.len(), r.yield_lines.len()),
+            (3, 3, 3)
+        );
+        assert!(!r.clockwise);
+        assert!((r.radius_m - 20.0).abs() < 2.0, "radius {}", r.radius_m);
+    }
+
+    #[test]
+    fn the_same_loop_tagged_is_a_tagged_roundabout_and_guessing_can_be_off() {
+        let tagged = import(&loop_with_arms(
+            &circle(20.0, 12),
+            &[0, 4, 8],
+            "<tag k=\"junction\" v=\"roundabout\"/>",
+        ));
+        assert_eq!(
+            tagged.roundabouts.values().next().map(|r| r.source),
+            Some(RoundaboutSource::Tagged)
+        );
+        let osm =
+            crate::osm::parse_xml(loop_with_arms(&circle(20.0, 12), &[0, 4, 8], "").as_bytes())
+                .expect("parses");
+        let off = import_osm(
+            &osm,
+            &ImportOptions {
+                guess_roundabouts: false,
+                ..Default::default()
+            },
+        )
+        .expect("imports");
+        assert!(off.roundabouts.is_empty());
+    }
+
+    #[test]
+    fn a_square_block_of_one_way_streets_is_not_a_roundabout() {
+        // 100 m square (circularity 0.785), the shape netconvert mistakes for roundabouts.
+        let square = [(-50.0, -50.0), (50.0, -50.0), (50.0, 50.0), (-50.0, 50.0)];
+        let map = import(&loop_with_arms(&square, &[0, 1, 2, 3], ""));
+        assert!(map.roundabouts.is_empty());
+    }
+
+    #[test]
+    fn a_loop_hanging_off_one_road_is_a_turning_loop() {
+        let map = import(&loop_with_arms(&circle(15.0, 10), &[0], ""));
+        assert!(map.roundabouts.is_empty());
+    }
+}

@@ -45,7 +45,45 @@ enum Open {
 }
 
 /// Parses OSM XML held in memory. Errors carry no path; [`read_xml`] adds it.
+///
+/// OSM files list all nodes before the first way, so a large file is parsed as two halves on
+/// two threads: the node section, and the ways and relations after it. Any error in either
+/// half re-parses the whole file in one pass, so the error message and its byte position are
+/// those of a plain sequential parse.
 pub fn parse_xml(input: &[u8]) -> Result<OsmData, MapError> {
+    const MIN_SPLIT_BYTES: usize = 256 * 1024;
+    let split = (input.len() >= MIN_SPLIT_BYTES)
+        .then(|| memchr::memmem::find(input, b"<way "))
+        .flatten()
+        .filter(|&at| at > input.len() / 8 && at < input.len() / 8 * 7);
+    let Some(at) = split else {
+        return parse_xml_sequential(input);
+    };
+    let head = [&input[..at], b"</osm>".as_slice()].concat();
+    let tail = [b"<osm>".as_slice(), &input[at..]].concat();
+    let (nodes, rest) = rayon::join(
+        || parse_xml_sequential(&head),
+        || parse_xml_sequential(&tail),
+    );
+    match (nodes, rest) {
+        (Ok(mut data), Ok(rest)) => {
+            let OsmData {
+                nodes,
+                ways,
+                relations,
+                invalid_nodes,
+            } = rest;
+            data.nodes.extend(nodes);
+            data.ways.extend(ways);
+            data.relations.extend(relations);
+            data.invalid_nodes.extend(invalid_nodes);
+            Ok(data)
+        }
+        _ => parse_xml_sequential(input),
+    }
+}
+
+fn parse_xml_sequential(input: &[u8]) -> Result<OsmData, MapError> {
     let mut reader = quick_xml::Reader::from_reader(input);
     reader.config_mut().trim_text(true);
     let mut data = OsmData::default();
@@ -266,6 +304,38 @@ mod tests {
         assert_eq!(d.ways[&7].nodes, vec![1, 2]);
         assert_eq!(d.ways[&7].tags.get("name"), Some("A & B"));
         assert_eq!(d.relations[&9].members[0].role, "from");
+    }
+
+    #[test]
+    fn split_parse_equals_sequential_parse() {
+        // Large enough to be split: many nodes, then ways and a relation.
+        let mut xml = String::from("<?xml version=\"1.0\"?>\n<osm version=\"0.6\">\n");
+        for i in 0..8000 {
+            xml += &format!(
+                "  <node id=\"{i}\" lat=\"{}\" lon=\"{}\"><tag k=\"n\" v=\"{i}\"/></node>\n",
+                10.0 + f64::from(i) * 1e-5,
+                20.0
+            );
+        }
+        for i in 0..2000 {
+            xml += &format!(
+                "  <way id=\"{i}\"><nd ref=\"{}\"/><nd ref=\"{}\"/><tag k=\"highway\" v=\"residential\"/></way>\n",
+                2 * i,
+                2 * i + 1
+            );
+        }
+        xml += "  <relation id=\"1\"><member type=\"way\" ref=\"1\" role=\"from\"/></relation>\n</osm>\n";
+        assert!(xml.len() > 256 * 1024);
+        let split = parse_xml(xml.as_bytes()).expect("parses");
+        let whole = parse_xml_sequential(xml.as_bytes()).expect("parses");
+        assert_eq!(split, whole);
+        assert_eq!(
+            (split.nodes.len(), split.ways.len(), split.relations.len()),
+            (8000, 2000, 1)
+        );
+        // A broken way section gives the sequential parser's error, not a half-read map.
+        let broken = xml.replace("<way id=\"1999\">", "<way id=\"1999\"></node>");
+        assert!(parse_xml(broken.as_bytes()).is_err());
     }
 
     #[test]
