@@ -265,14 +265,8 @@ impl<'a> Builder<'a> {
             .junction_of_node
             .retain(|_, j| builder.map.junctions.contains_key(j));
         for j in builder.map.junctions.values_mut() {
-            let ends = builder
-                .map
-                .roads
-                .values()
-                .map(|r| {
-                    usize::from(r.start_junction == j.id) + usize::from(r.end_junction == j.id)
-                })
-                .sum::<usize>();
+            // Each road end at a junction added the road to its list once.
+            let ends = j.roads.len();
             j.kind = match ends {
                 0 | 1 => JunctionKind::DeadEnd,
                 2 => JunctionKind::Continuation,
