@@ -1,0 +1,4 @@
+//! Segmentation data in one class table (0 road, 1 lane marking, 2 vehicle, 3 human,
+//! 4 other, 255 ignore): labelled camera images rendered from drivable maps, joint
+//! image-and-label augmentation, public label sets mapped into the classes, and the
+//! manifest, card and tools (stats, split, check, merge) they all share.
