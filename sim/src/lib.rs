@@ -2,7 +2,32 @@
 //! traffic world that moves them, the driving tasks (actions, reward, termination, metrics,
 //! baselines) and the bird's-eye observation renderer, which takes a scene rather than
 //! simulator internals so recorded logs can be rendered the same way.
+//!
+//! - [`scene`]: [`Scene`] and [`Actor`] (plain data: what the renderer and rerun logging use).
+//! - [`roundabout`]: the routes through a roundabout (entry, ring, exit), prepared per map.
+//! - [`world`]: the traffic world (IDM, gap acceptance, aggressiveness, spawning, the ego's
+//!   kinematic bicycle), deterministic under a seed.
+//! - [`render`]: the bird's-eye representation (layers, frame stack).
+//! - [`tasks`]: roundabout insertion as an [`Env`].
+//! - [`baselines`] and [`eval`]: rule-based and constant policies, and the parallel
+//!   evaluation harness that learned policies plug into.
 
+pub mod baselines;
 pub mod env;
+pub mod error;
+pub mod eval;
+pub mod path;
+pub mod render;
+pub mod roundabout;
+pub mod scene;
+pub mod seed;
+pub mod spatial;
+pub mod tasks;
+pub mod world;
+
+#[cfg(test)]
+pub(crate) mod test_maps;
 
 pub use env::{Env, Observation, ObservationSpec, Outcome, Step};
+pub use error::SimError;
+pub use scene::{Actor, ActorKind, OrientedBox, Scene};

@@ -1,0 +1,76 @@
+//! Baseline table of the roundabout-insertion task: every standard baseline under the
+//! chosen conditions, as markdown on stdout (and JSON with `--json FILE`).
+//!
+//!     cargo run --release -p sim --example baseline_table -- \
+//!         --map data/osm/montlake_roundabout.osm.pbf --traffic medium --aggressiveness 0.5 --episodes 3000
+#![allow(clippy::print_stdout, clippy::print_stderr)]
+
+use std::sync::Arc;
+
+use sim::baselines::Baseline;
+use sim::eval::{Condition, EvalOptions, evaluate, markdown_table};
+use sim::tasks::{InsertionConfig, InsertionSetup};
+use sim::world::TrafficLevel;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut map_path = String::from("data/osm/montlake_roundabout.osm.pbf");
+    let mut traffic: Vec<TrafficLevel> = Vec::new();
+    let mut aggressiveness: Vec<f64> = Vec::new();
+    let mut options = EvalOptions {
+        episodes: 300,
+        ..EvalOptions::default()
+    };
+    let mut json: Option<String> = None;
+    let mut args = std::env::args().skip(1);
+    while let Some(flag) = args.next() {
+        let mut value = || args.next().ok_or_else(|| format!("{flag} needs a value"));
+        match flag.as_str() {
+            "--map" => map_path = value()?,
+            "--traffic" => traffic.push(value()?.parse()?),
+            "--aggressiveness" => aggressiveness.push(value()?.parse()?),
+            "--episodes" => options.episodes = value()?.parse()?,
+            "--seed" => options.seed = value()?.parse()?,
+            "--json" => json = Some(value()?),
+            other => return Err(format!("unknown argument {other}").into()),
+        }
+    }
+    if traffic.is_empty() {
+        traffic.push(TrafficLevel::Medium);
+    }
+    if aggressiveness.is_empty() {
+        aggressiveness.push(0.5);
+    }
+    let conditions: Vec<Condition> = traffic
+        .iter()
+        .flat_map(|&t| {
+            aggressiveness.iter().map(move |&a| Condition {
+                traffic: t,
+                aggressiveness: a,
+            })
+        })
+        .collect();
+    let map = maps::import_file(std::path::Path::new(&map_path), &Default::default())
+        .map_err(|e| format!("{map_path}: {e}"))?;
+    let setup = InsertionSetup::new(Arc::new(map), InsertionConfig::default())?;
+    let started = std::time::Instant::now();
+    let mut rows = Vec::new();
+    for baseline in Baseline::STANDARD {
+        let results = evaluate(&setup, || baseline, &conditions, &options, &|_| {});
+        rows.push((baseline.name(), results));
+    }
+    println!("{}", markdown_table(&rows));
+    eprintln!(
+        "{} episodes per condition and policy, seed {}, {:.1} s wall",
+        options.episodes,
+        options.seed,
+        started.elapsed().as_secs_f64()
+    );
+    if let Some(path) = json {
+        let value: Vec<_> = rows
+            .iter()
+            .map(|(name, results)| serde_json::json!({"policy": name, "conditions": results}))
+            .collect();
+        std::fs::write(&path, serde_json::to_string_pretty(&value)?)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,111 @@
+//! Policies for the roundabout-insertion task as the evaluation harness drives them, and
+//! the baselines every agent is reported next to.
+//!
+//! A [`Policy`] decides for a batch of episodes at once (one input per running episode of
+//! its batch), so a learned policy can run its network on the whole batch in one forward
+//! pass. Learned agents must only read [`PolicyInput::observation`]; the privileged
+//! [`PolicyInput::state`] is there for the rule-based baselines.
+
+use serde::{Deserialize, Serialize};
+
+use crate::env::Observation;
+use crate::seed::derive_seed;
+use crate::tasks::{Action, InsertionState};
+
+/// What a policy sees at one decision of one episode.
+#[derive(Debug, Clone, Copy)]
+pub struct PolicyInput<'a> {
+    /// The episode's place in the policy's batch (stable over the episode).
+    pub slot: usize,
+    /// The seed the episode was reset with (a stochastic policy draws from it, so its
+    /// choices do not depend on which worker runs the episode).
+    pub episode_seed: u64,
+    /// Steps taken so far in the episode.
+    pub step: usize,
+    pub observation: &'a Observation,
+    pub state: &'a InsertionState,
+}
+
+/// A decision rule over batches of episodes. One instance serves one worker at a time
+/// (made by the factory given to [`crate::eval::evaluate`]), hence `Send` but not `Sync`.
+pub trait Policy: Send {
+    /// One action index per input, in the same order, into `actions` (cleared first).
+    fn act(&mut self, inputs: &[PolicyInput<'_>], actions: &mut Vec<usize>);
+
+    /// Whether the policy reads observations; when it does not, the harness skips
+    /// rendering them (the episodes are the same either way).
+    fn needs_observation(&self) -> bool {
+        true
+    }
+}
+
+/// The baselines of the Parma study, plus the constant "never go" policy.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Baseline {
+    /// Enter when the nearest circulating vehicle is farther than this many metres (until
+    /// entered: Not Permitted; after: Permitted).
+    Rule {
+        threshold_m: f64,
+    },
+    AlwaysPermitted,
+    AlwaysNotPermitted,
+    /// Uniform over the actions, drawn from (episode seed, step).
+    Random,
+}
+
+impl Baseline {
+    /// The study's set: rules at 25 / 20 / 15 / 10 m, always Permitted, random, and
+    /// always Not Permitted.
+    pub const STANDARD: [Baseline; 7] = [
+        Baseline::Rule { threshold_m: 25.0 },
+        Baseline::Rule { threshold_m: 20.0 },
+        Baseline::Rule { threshold_m: 15.0 },
+        Baseline::Rule { threshold_m: 10.0 },
+        Baseline::AlwaysPermitted,
+        Baseline::Random,
+        Baseline::AlwaysNotPermitted,
+    ];
+
+    pub fn name(&self) -> String {
+        match self {
+            Baseline::Rule { threshold_m } => format!("rule {threshold_m} m"),
+            Baseline::AlwaysPermitted => "always permitted".into(),
+            Baseline::AlwaysNotPermitted => "always not permitted".into(),
+            Baseline::Random => "random".into(),
+        }
+    }
+
+    /// The action for one input.
+    pub fn decide(&self, input: &PolicyInput<'_>) -> Action {
+        match *self {
+            Baseline::Rule { threshold_m } => {
+                if input.state.ego_entered || input.state.nearest_circulating_m > threshold_m {
+                    Action::Permitted
+                } else {
+                    Action::NotPermitted
+                }
+            }
+            Baseline::AlwaysPermitted => Action::Permitted,
+            Baseline::AlwaysNotPermitted => Action::NotPermitted,
+            Baseline::Random => {
+                let draw = derive_seed(input.episode_seed, RANDOM_POLICY_STAGE, input.step as u64);
+                Action::ALL[(draw % Action::ALL.len() as u64) as usize]
+            }
+        }
+    }
+}
+
+/// Seed stage of the random baseline's draws.
+const RANDOM_POLICY_STAGE: u64 = 0x5241_4e44;
+
+impl Policy for Baseline {
+    fn act(&mut self, inputs: &[PolicyInput<'_>], actions: &mut Vec<usize>) {
+        actions.clear();
+        actions.extend(inputs.iter().map(|i| self.decide(i) as usize));
+    }
+
+    fn needs_observation(&self) -> bool {
+        false
+    }
+}

@@ -1,0 +1,630 @@
+//! The synthetic bird's-eye representation: an ego-centred, ego-aligned grid of layers
+//! drawn from a [`Scene`].
+//!
+//! Row 0 is the farthest ahead, column 0 the farthest to the left (x forward, y left, the
+//! ego in the middle). Layers are `u8` (0 empty, 255 full), layer-major.
+//!
+//! Speed matters (a frame per 0.1 s step of every environment): the static layers
+//! (navigable area, stop / yield lines) are rasterised once per map region at a fine
+//! resolution ([`MapRaster`]) and each frame samples them through the ego transform (one
+//! lookup per output pixel, nearest neighbour); the path and the vehicles are drawn
+//! directly as convex polygons in the output grid.
+
+use maps::geometry::Bounds;
+use maps::raster::{Layers, RasterSpec, Rasterizer};
+use maps::{Map, Point};
+use serde::{Deserialize, Serialize};
+
+use crate::scene::{Actor, Scene};
+
+/// One layer of the representation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Layer {
+    /// Where a car may drive (lanes, connections, junction areas).
+    Navigable,
+    /// The ego's route.
+    Path,
+    /// Every vehicle's footprint, the ego's included.
+    Obstacles,
+    /// Stop and yield lines.
+    StopLines,
+}
+
+impl Layer {
+    pub fn name(self) -> &'static str {
+        match self {
+            Layer::Navigable => "navigable",
+            Layer::Path => "path",
+            Layer::Obstacles => "obstacles",
+            Layer::StopLines => "stop_lines",
+        }
+    }
+}
+
+/// Size, extent and content of the representation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct BevConfig {
+    /// Pixels across (left to right).
+    pub width: usize,
+    /// Pixels from front to back.
+    pub height: usize,
+    /// Metres covered ahead-to-behind and left-to-right; the ego sits in the middle.
+    pub forward_m: f64,
+    pub lateral_m: f64,
+    pub layers: Vec<Layer>,
+    /// Frames stacked into one observation (oldest first).
+    pub stack: usize,
+    /// Resolution of the precomputed map raster the static layers are sampled from, m.
+    pub map_resolution_m: f64,
+    /// Width of the drawn path, m.
+    pub path_width_m: f64,
+    /// Width of drawn stop lines, m (about one output pixel keeps them visible).
+    pub line_width_m: f64,
+}
+
+impl Default for BevConfig {
+    fn default() -> Self {
+        BevConfig {
+            width: 84,
+            height: 84,
+            forward_m: 50.0,
+            lateral_m: 50.0,
+            layers: vec![
+                Layer::Navigable,
+                Layer::Path,
+                Layer::Obstacles,
+                Layer::StopLines,
+            ],
+            stack: 4,
+            map_resolution_m: 0.2,
+            path_width_m: 2.0,
+            line_width_m: 0.8,
+        }
+    }
+}
+
+impl BevConfig {
+    pub fn frame_len(&self) -> usize {
+        self.layers.len() * self.width * self.height
+    }
+
+    /// Channels of an observation: layers × stacked frames.
+    pub fn channels(&self) -> usize {
+        self.layers.len() * self.stack
+    }
+
+    /// Radius around the ego that a frame can show, m.
+    pub fn view_radius_m(&self) -> f64 {
+        self.forward_m.hypot(self.lateral_m) / 2.0
+    }
+
+    pub fn validate(&self) -> Result<(), crate::SimError> {
+        let ok = self.width > 0
+            && self.height > 0
+            && self.width * self.height <= 1 << 22
+            && self.stack > 0
+            && !self.layers.is_empty()
+            && [self.forward_m, self.lateral_m, self.map_resolution_m]
+                .iter()
+                .all(|v| v.is_finite() && *v > 0.0);
+        if ok {
+            Ok(())
+        } else {
+            Err(crate::SimError::Config(format!(
+                "bird's-eye view {}×{} px over {}×{} m, {} layers, stack {}, map raster {} m: sizes must be positive",
+                self.width,
+                self.height,
+                self.forward_m,
+                self.lateral_m,
+                self.layers.len(),
+                self.stack,
+                self.map_resolution_m
+            )))
+        }
+    }
+}
+
+const NAVIGABLE_BIT: u8 = 1;
+const STOP_LINE_BIT: u8 = 2;
+
+/// The static layers of one map region, rasterised once at a fine resolution: bit 0
+/// navigable, bit 1 stop / yield line.
+#[derive(Debug, Clone)]
+pub struct MapRaster {
+    spec: RasterSpec,
+    bits: Vec<u8>,
+}
+
+impl MapRaster {
+    /// Rasterises `region` of `map` at `resolution_m`, stop lines `line_width_m` wide.
+    pub fn new(map: &Map, region: Bounds, resolution_m: f64, line_width_m: f64) -> Self {
+        let spec = RasterSpec::covering(region, resolution_m);
+        let drivable = Rasterizer::new(map)
+            .rasterize(&spec, Layers::DRIVABLE)
+            .drivable
+            .unwrap_or_else(|| vec![0; spec.len()]);
+        let mut bits: Vec<u8> = drivable
+            .iter()
+            .map(|&d| if d != 0 { NAVIGABLE_BIT } else { 0 })
+            .collect();
+        let mut lines = vec![0u8; spec.len()];
+        let to_pixel = |p: Point| map_pixel(&spec, p);
+        for line in map.stop_lines.values() {
+            let pts: Vec<(f64, f64)> = line.line.iter().map(|p| to_pixel(*p)).collect();
+            stroke(
+                &mut lines,
+                spec.width as usize,
+                spec.height as usize,
+                &pts,
+                line_width_m / spec.resolution_m,
+                1,
+            );
+        }
+        for (b, l) in bits.iter_mut().zip(&lines) {
+            if *l != 0 {
+                *b |= STOP_LINE_BIT;
+            }
+        }
+        MapRaster { spec, bits }
+    }
+
+    pub fn spec(&self) -> &RasterSpec {
+        &self.spec
+    }
+
+    fn bits_at(&self, p: Point) -> u8 {
+        let (x, y) = map_pixel(&self.spec, p);
+        if x >= 0.0 && y >= 0.0 && x < f64::from(self.spec.width) && y < f64::from(self.spec.height)
+        {
+            self.bits[y as usize * self.spec.width as usize + x as usize]
+        } else {
+            0
+        }
+    }
+
+    /// Whether a car may drive at `p` (false outside the region).
+    pub fn navigable(&self, p: Point) -> bool {
+        self.bits_at(p) & NAVIGABLE_BIT != 0
+    }
+}
+
+/// Continuous pixel coordinates (x right, y down) of a map point in a raster.
+fn map_pixel(spec: &RasterSpec, p: Point) -> (f64, f64) {
+    let top = spec.origin.y + f64::from(spec.height) * spec.resolution_m;
+    (
+        (p.x - spec.origin.x) / spec.resolution_m,
+        (top - p.y) / spec.resolution_m,
+    )
+}
+
+/// Draws scenes of one map region.
+#[derive(Debug, Clone)]
+pub struct BevRenderer {
+    config: BevConfig,
+    raster: std::sync::Arc<MapRaster>,
+}
+
+/// The ego transform of one frame: map point -> continuous output pixel.
+#[derive(Debug, Clone, Copy)]
+struct EgoFrame {
+    origin: Point,
+    forward: Point,
+    left: Point,
+    /// Pixels per metre along the rows and the columns.
+    px_fwd: f64,
+    px_lat: f64,
+    half_w: f64,
+    half_h: f64,
+}
+
+impl EgoFrame {
+    fn new(config: &BevConfig, ego: &Actor) -> Self {
+        let (sin, cos) = ego.heading_rad.sin_cos();
+        EgoFrame {
+            origin: ego.position,
+            forward: Point::new(cos, sin),
+            left: Point::new(-sin, cos),
+            px_fwd: config.height as f64 / config.forward_m,
+            px_lat: config.width as f64 / config.lateral_m,
+            half_w: config.width as f64 / 2.0,
+            half_h: config.height as f64 / 2.0,
+        }
+    }
+
+    /// (column, row) in continuous pixel units: row 0 ahead, column 0 left.
+    fn pixel(&self, p: Point) -> (f64, f64) {
+        let d = p.sub(self.origin);
+        (
+            self.half_w - d.dot(self.left) * self.px_lat,
+            self.half_h - d.dot(self.forward) * self.px_fwd,
+        )
+    }
+
+    /// Map point at the centre of output pixel (`col`, `row`).
+    fn map_point(&self, col: f64, row: f64) -> Point {
+        let fwd = (self.half_h - row - 0.5) / self.px_fwd;
+        let lat = (self.half_w - col - 0.5) / self.px_lat;
+        self.origin
+            .add(self.forward.scale(fwd))
+            .add(self.left.scale(lat))
+    }
+}
+
+impl BevRenderer {
+    /// A renderer for scenes whose ego stays inside `region` of `map`: the static layers
+    /// are rasterised here, over the region grown by the view radius.
+    pub fn new(map: &Map, region: Bounds, config: BevConfig) -> Result<Self, crate::SimError> {
+        config.validate()?;
+        let mut grown = region;
+        if !grown.is_empty() {
+            let r = config.view_radius_m() + 1.0;
+            grown.extend(Point::new(region.min.x - r, region.min.y - r));
+            grown.extend(Point::new(region.max.x + r, region.max.y + r));
+        }
+        let raster = MapRaster::new(map, grown, config.map_resolution_m, config.line_width_m);
+        Ok(BevRenderer {
+            config,
+            raster: std::sync::Arc::new(raster),
+        })
+    }
+
+    /// A renderer sharing another's map raster, with a different layer choice or stack
+    /// (same size, extent and raster resolution).
+    pub fn with_raster(
+        raster: std::sync::Arc<MapRaster>,
+        config: BevConfig,
+    ) -> Result<Self, crate::SimError> {
+        config.validate()?;
+        Ok(BevRenderer { config, raster })
+    }
+
+    pub fn config(&self) -> &BevConfig {
+        &self.config
+    }
+
+    pub fn raster(&self) -> &std::sync::Arc<MapRaster> {
+        &self.raster
+    }
+
+    /// Draws one frame of `scene` into `out` (`config.frame_len()` bytes, layer-major,
+    /// `[layer, row, column]`). Does nothing when the scene has no ego.
+    pub fn render(&self, scene: &Scene<'_>, out: &mut Vec<u8>) {
+        let cfg = &self.config;
+        let (w, h) = (cfg.width, cfg.height);
+        let plane = w * h;
+        out.clear();
+        out.resize(cfg.frame_len(), 0);
+        let Some(ego) = scene.ego_actor() else { return };
+        let frame = EgoFrame::new(cfg, ego);
+        let slot = |layer: Layer| cfg.layers.iter().position(|l| *l == layer);
+        let (nav, lines) = (slot(Layer::Navigable), slot(Layer::StopLines));
+        if nav.is_some() || lines.is_some() {
+            self.sample_static(&frame, out, nav, lines);
+        }
+        if let Some(k) = slot(Layer::Path) {
+            let pts: Vec<(f64, f64)> = scene.ego_path.iter().map(|p| frame.pixel(*p)).collect();
+            let width_px = cfg.path_width_m * frame.px_lat;
+            stroke(
+                &mut out[k * plane..(k + 1) * plane],
+                w,
+                h,
+                &pts,
+                width_px,
+                255,
+            );
+        }
+        if let Some(k) = slot(Layer::Obstacles) {
+            let buf = &mut out[k * plane..(k + 1) * plane];
+            for actor in &scene.actors {
+                let corners = actor.footprint().corners().map(|p| frame.pixel(p));
+                fill_convex(buf, w, h, &corners, 255);
+            }
+        }
+    }
+
+    /// Nearest-neighbour samples of the map raster for the navigable and stop line layers.
+    fn sample_static(
+        &self,
+        frame: &EgoFrame,
+        out: &mut [u8],
+        nav: Option<usize>,
+        lines: Option<usize>,
+    ) {
+        let (w, h) = (self.config.width, self.config.height);
+        let plane = w * h;
+        let spec = self.raster.spec;
+        let (rw, rh) = (spec.width as f64, spec.height as f64);
+        let to_raster = |p: Point| map_pixel(&spec, p);
+        // Raster coordinates are affine in (column, row): walk them by increments.
+        let p00 = to_raster(frame.map_point(0.0, 0.0));
+        let p01 = to_raster(frame.map_point(1.0, 0.0));
+        let p10 = to_raster(frame.map_point(0.0, 1.0));
+        let d_col = (p01.0 - p00.0, p01.1 - p00.1);
+        let d_row = (p10.0 - p00.0, p10.1 - p00.1);
+        let stride = spec.width as usize;
+        let bits = &self.raster.bits;
+        for row in 0..h {
+            let (mut x, mut y) = (p00.0 + d_row.0 * row as f64, p00.1 + d_row.1 * row as f64);
+            for col in 0..w {
+                let b = if x >= 0.0 && y >= 0.0 && x < rw && y < rh {
+                    bits[y as usize * stride + x as usize]
+                } else {
+                    0
+                };
+                let i = row * w + col;
+                if let Some(k) = nav {
+                    out[k * plane + i] = if b & NAVIGABLE_BIT != 0 { 255 } else { 0 };
+                }
+                if let Some(k) = lines {
+                    out[k * plane + i] = if b & STOP_LINE_BIT != 0 { 255 } else { 0 };
+                }
+                x += d_col.0;
+                y += d_col.1;
+            }
+        }
+    }
+}
+
+/// Fills a convex polygon (continuous pixel coordinates, x right, y down) into a
+/// `w` × `h` buffer: every pixel whose centre lies inside gets `value`.
+pub fn fill_convex(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value: u8) {
+    if pts.len() < 3 || !pts.iter().all(|p| p.0.is_finite() && p.1.is_finite()) {
+        return;
+    }
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let (mut left, mut right) = (f64::INFINITY, f64::NEG_INFINITY);
+    for p in pts {
+        lo = lo.min(p.1);
+        hi = hi.max(p.1);
+        left = left.min(p.0);
+        right = right.max(p.0);
+    }
+    if hi <= 0.0 || lo >= h as f64 || right <= 0.0 || left >= w as f64 {
+        return;
+    }
+    let r0 = (lo - 0.5).ceil().max(0.0) as usize;
+    let r1 = ((hi - 0.5).floor().min(h as f64 - 1.0)).max(-1.0);
+    if r1 < 0.0 {
+        return;
+    }
+    let n = pts.len();
+    for row in r0..=r1 as usize {
+        let y = row as f64 + 0.5;
+        let (mut x0, mut x1) = (f64::INFINITY, f64::NEG_INFINITY);
+        for i in 0..n {
+            let (a, b) = (pts[i], pts[(i + 1) % n]);
+            if (a.1 <= y) != (b.1 <= y) {
+                let x = a.0 + (y - a.1) * (b.0 - a.0) / (b.1 - a.1);
+                x0 = x0.min(x);
+                x1 = x1.max(x);
+            }
+        }
+        if x0 > x1 {
+            continue;
+        }
+        let c0 = (x0 - 0.5).ceil().max(0.0);
+        let c1 = (x1 - 0.5).floor().min(w as f64 - 1.0);
+        if c0 > c1 {
+            continue;
+        }
+        let off = row * w;
+        buf[off + c0 as usize..=off + c1 as usize].fill(value);
+    }
+}
+
+/// Draws a polyline `width` pixels wide: a rectangle per segment and a square at each
+/// inner vertex (so bends have no notches).
+pub fn stroke(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], width: f64, value: u8) {
+    let half = width / 2.0;
+    let (fw, fh) = (w as f64, h as f64);
+    let outside = |a: (f64, f64), b: (f64, f64)| {
+        (a.0.max(b.0) + half < 0.0)
+            || (a.0.min(b.0) - half > fw)
+            || (a.1.max(b.1) + half < 0.0)
+            || (a.1.min(b.1) - half > fh)
+    };
+    for seg in pts.windows(2) {
+        let (a, b) = (seg[0], seg[1]);
+        if outside(a, b) {
+            continue;
+        }
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let len = dx.hypot(dy);
+        if len.is_nan() || len <= 0.0 {
+            continue;
+        }
+        let (nx, ny) = (-dy / len * half, dx / len * half);
+        fill_convex(
+            buf,
+            w,
+            h,
+            &[
+                (a.0 + nx, a.1 + ny),
+                (b.0 + nx, b.1 + ny),
+                (b.0 - nx, b.1 - ny),
+                (a.0 - nx, a.1 - ny),
+            ],
+            value,
+        );
+    }
+    for p in pts.iter().skip(1).take(pts.len().saturating_sub(2)) {
+        if outside(*p, *p) {
+            continue;
+        }
+        fill_convex(
+            buf,
+            w,
+            h,
+            &[
+                (p.0 - half, p.1 - half),
+                (p.0 + half, p.1 - half),
+                (p.0 + half, p.1 + half),
+                (p.0 - half, p.1 + half),
+            ],
+            value,
+        );
+    }
+}
+
+/// The last `stack` frames of an episode, oldest first.
+#[derive(Debug, Clone)]
+pub struct FrameStack {
+    frame_len: usize,
+    stack: usize,
+    /// Ring buffer of frames; `head` is the oldest.
+    frames: Vec<u8>,
+    head: usize,
+}
+
+impl FrameStack {
+    pub fn new(frame_len: usize, stack: usize) -> Self {
+        FrameStack {
+            frame_len,
+            stack: stack.max(1),
+            frames: vec![0; frame_len * stack.max(1)],
+            head: 0,
+        }
+    }
+
+    /// Starts an episode: every slot holds `frame`.
+    pub fn reset(&mut self, frame: &[u8]) {
+        for chunk in self.frames.chunks_mut(self.frame_len) {
+            chunk.copy_from_slice(frame);
+        }
+        self.head = 0;
+    }
+
+    /// Adds the newest frame, dropping the oldest.
+    pub fn push(&mut self, frame: &[u8]) {
+        let at = self.head * self.frame_len;
+        self.frames[at..at + self.frame_len].copy_from_slice(frame);
+        self.head = (self.head + 1) % self.stack;
+    }
+
+    /// The stack, oldest frame first, into `out` (`stack × frame_len` bytes).
+    pub fn write(&self, out: &mut Vec<u8>) {
+        out.clear();
+        out.reserve(self.frames.len());
+        let split = self.head * self.frame_len;
+        out.extend_from_slice(&self.frames[split..]);
+        out.extend_from_slice(&self.frames[..split]);
+    }
+
+    /// The newest frame.
+    pub fn newest(&self) -> &[u8] {
+        let i = (self.head + self.stack - 1) % self.stack;
+        &self.frames[i * self.frame_len..(i + 1) * self.frame_len]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::ActorKind;
+
+    #[test]
+    fn convex_fill_counts_pixel_centres() {
+        let mut buf = vec![0u8; 100];
+        // A 4 × 3 pixel rectangle from (2, 1) to (6, 4).
+        fill_convex(
+            &mut buf,
+            10,
+            10,
+            &[(2.0, 1.0), (6.0, 1.0), (6.0, 4.0), (2.0, 4.0)],
+            7,
+        );
+        assert_eq!(buf.iter().filter(|&&v| v == 7).count(), 12);
+        assert_eq!(buf[10 + 2], 7);
+        assert_eq!(buf[10 + 6], 0);
+        // Clipped at the border, no panic.
+        fill_convex(
+            &mut buf,
+            10,
+            10,
+            &[(-5.0, -5.0), (20.0, -5.0), (20.0, 0.4)],
+            9,
+        );
+        fill_convex(
+            &mut buf,
+            10,
+            10,
+            &[(-5.0, 8.0), (20.0, 8.0), (20.0, 30.0), (-5.0, 30.0)],
+            9,
+        );
+        assert_eq!(buf[95], 9);
+    }
+
+    #[test]
+    fn frame_stack_keeps_order() {
+        let mut s = FrameStack::new(2, 3);
+        s.reset(&[1, 1]);
+        s.push(&[2, 2]);
+        s.push(&[3, 3]);
+        let mut out = Vec::new();
+        s.write(&mut out);
+        assert_eq!(out, vec![1, 1, 2, 2, 3, 3]);
+        s.push(&[4, 4]);
+        s.write(&mut out);
+        assert_eq!(out, vec![2, 2, 3, 3, 4, 4]);
+        assert_eq!(s.newest(), &[4, 4]);
+    }
+
+    /// A straight east-going lane: ahead of a north-facing ego it shows on the right.
+    #[test]
+    fn ego_aligned_orientation() {
+        let map = crate::test_maps::straight_road(Point::new(-100.0, 0.0), Point::new(100.0, 0.0));
+        let mut region = Bounds::empty();
+        region.extend(Point::new(-30.0, -30.0));
+        region.extend(Point::new(30.0, 30.0));
+        let config = BevConfig::default();
+        let renderer = BevRenderer::new(&map, region, config.clone()).expect("renderer");
+        let actor = |x: f64, y: f64, heading: f64| Actor {
+            id: 0,
+            kind: ActorKind::Car,
+            position: Point::new(x, y),
+            heading_rad: heading,
+            speed_mps: 0.0,
+            length_m: 4.0,
+            width_m: 2.0,
+            lane: None,
+            aggressiveness: None,
+        };
+        let path = [Point::new(0.0, 0.0), Point::new(20.0, 0.0)];
+        // Ego facing east at the origin; another car 10 m ahead of it.
+        let scene = Scene {
+            map: &map,
+            time_s: 0.0,
+            actors: vec![actor(0.0, 0.0, 0.0), actor(10.0, 0.0, 0.0)],
+            ego: 0,
+            ego_path: &path,
+        };
+        let mut out = Vec::new();
+        renderer.render(&scene, &mut out);
+        let plane = 84 * 84;
+        let at =
+            |out: &[u8], layer: usize, row: usize, col: usize| out[layer * plane + row * 84 + col];
+        // The road runs along the middle column band, forward = up.
+        assert_eq!(at(&out, 0, 10, 42), 255);
+        assert_eq!(at(&out, 0, 10, 10), 0);
+        // Path ahead (rows above the middle), not behind.
+        assert_eq!(at(&out, 1, 30, 42), 255);
+        assert_eq!(at(&out, 1, 60, 42), 0);
+        // The car 10 m ahead: 10 m × 1.68 px/m = 16.8 rows above the centre.
+        assert_eq!(at(&out, 2, 42 - 17, 42), 255);
+        assert_eq!(at(&out, 2, 42 + 17, 42), 0);
+        // Ego facing north at (0, -10): the road is 10 m ahead, across the view.
+        let scene = Scene {
+            actors: vec![actor(0.0, -10.0, std::f64::consts::FRAC_PI_2)],
+            ..scene
+        };
+        renderer.render(&scene, &mut out);
+        assert_eq!(at(&out, 0, 42 - 17, 5), 255);
+        assert_eq!(at(&out, 0, 42 - 17, 80), 255);
+        assert_eq!(at(&out, 0, 42, 42), 0);
+        // The path points east, which for a north-facing ego is to the right.
+        assert_eq!(at(&out, 1, 42 - 17, 60), 255);
+        assert_eq!(at(&out, 1, 42 - 17, 20), 0);
+    }
+}

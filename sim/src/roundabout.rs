@@ -1,0 +1,420 @@
+//! The routes through one roundabout of a map: every entry arm to every exit arm, each from
+//! a stretch before the yield line, round the ring, to a stretch past the exit. The traffic
+//! world and the insertion task share these routes (prepared once per map), so vehicles on
+//! one approach always compare positions along the same geometry.
+
+use std::collections::{BTreeMap, BTreeSet, BinaryHeap};
+
+use maps::geometry::{Bounds, polyline_length};
+use maps::{ConnectionId, LaneId, Map, Point, Roundabout, RoundaboutId};
+use serde::{Deserialize, Serialize};
+
+use crate::error::SimError;
+use crate::path::{Path, PieceKey, SpeedProfile};
+use crate::scene::OrientedBox;
+
+/// How far routes reach before and after the ring.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LayoutConfig {
+    /// Length of approach before the yield line, metres (less where the map ends sooner).
+    pub approach_m: f64,
+    /// Length of the exit after leaving the ring, metres (less where the map ends sooner).
+    pub exit_m: f64,
+    /// Lateral acceleration drivers accept in curves, m/s².
+    pub lateral_accel_mps2: f64,
+    /// A car waiting at a yield line keeps at least this far from the footprints of traffic
+    /// entering, circulating or leaving (mini roundabouts put mapped lines right at the
+    /// ring's edge, where cars sweeping round would clip a waiting car), m. The line is
+    /// moved back along the approach until that holds.
+    pub waiting_clearance_m: f64,
+}
+
+impl Default for LayoutConfig {
+    fn default() -> Self {
+        LayoutConfig {
+            approach_m: 45.0,
+            exit_m: 25.0,
+            lateral_accel_mps2: 2.5,
+            waiting_clearance_m: 0.3,
+        }
+    }
+}
+
+/// One lane entering the ring.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Entry {
+    pub road: maps::RoadId,
+    pub lane: LaneId,
+}
+
+/// One lane leaving the ring.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Exit {
+    pub road: maps::RoadId,
+    pub lane: LaneId,
+}
+
+/// A route from one entry to one exit, with the places along it that matter.
+#[derive(Debug, Clone)]
+pub struct RingRoute {
+    pub entry: usize,
+    pub exit: usize,
+    pub path: Path,
+    /// Where a driver gives way, metres along the path: the mapped yield line (or the
+    /// ring's edge when the map has none), moved back as far as
+    /// [`LayoutConfig::waiting_clearance_m`] asks.
+    pub yield_s: f64,
+    /// Start of the first ring lane: where the route joins circulating traffic.
+    pub merge_s: f64,
+    pub merge_lane: LaneId,
+    /// Start of the exit lane: where the route leaves the ring.
+    pub exit_s: f64,
+    /// Ring lanes driven, each with where it starts along the path, in driving order.
+    pub ring_lanes: Vec<(LaneId, f64)>,
+}
+
+impl RingRoute {
+    /// Where lane `lane` starts along this route, if the route drives it in the ring.
+    pub fn ring_lane_start(&self, lane: LaneId) -> Option<f64> {
+        self.ring_lanes
+            .iter()
+            .find(|(l, _)| *l == lane)
+            .map(|(_, s)| *s)
+    }
+}
+
+/// Every usable route through one roundabout.
+#[derive(Debug, Clone)]
+pub struct RoundaboutLayout {
+    pub roundabout: RoundaboutId,
+    pub centre: Point,
+    pub radius_m: f64,
+    pub entries: Vec<Entry>,
+    pub exits: Vec<Exit>,
+    pub routes: Vec<RingRoute>,
+    /// Indices into `routes` by entry.
+    pub routes_by_entry: Vec<Vec<usize>>,
+    /// The box holding every route.
+    pub bounds: Bounds,
+}
+
+/// Lanes a route may cross between an entry lane and the ring (Lanelet2 maps split
+/// approaches into several lanelets).
+const MAX_LANES_BEFORE_RING: usize = 3;
+/// Lanes walked at most when extending an approach backwards or an exit forwards.
+const MAX_EXTENSION_LANES: usize = 64;
+
+impl RoundaboutLayout {
+    /// The routes through roundabout `id` of `map`. Fails when it has no entry from which
+    /// an exit can be reached through the ring.
+    pub fn new(map: &Map, id: RoundaboutId, config: &LayoutConfig) -> Result<Self, SimError> {
+        let rb = map
+            .roundabouts
+            .get(&id)
+            .ok_or_else(|| SimError::Map(format!("roundabout {id} is not in the map")))?;
+        let ring: BTreeSet<LaneId> = rb.ring_lanes.iter().copied().collect();
+        let outgoing = map.outgoing();
+        let entries: Vec<Entry> = rb
+            .entries
+            .iter()
+            .flat_map(|a| a.lanes.iter().map(|&lane| Entry { road: a.road, lane }))
+            .filter(|e| map.lanes.contains_key(&e.lane))
+            .collect();
+        let exits: Vec<Exit> = rb
+            .exits
+            .iter()
+            .flat_map(|a| a.lanes.iter().map(|&lane| Exit { road: a.road, lane }))
+            .filter(|e| map.lanes.contains_key(&e.lane))
+            .collect();
+        let profile = SpeedProfile {
+            lateral_accel_mps2: config.lateral_accel_mps2,
+            ..SpeedProfile::default()
+        };
+        let mut routes = Vec::new();
+        let mut routes_by_entry = vec![Vec::new(); entries.len()];
+        for (ei, entry) in entries.iter().enumerate() {
+            for (xi, exit) in exits.iter().enumerate() {
+                if exit.road == entry.road {
+                    continue; // a U-turn back into the road it came from
+                }
+                let Some(route) = build_route(
+                    map,
+                    rb,
+                    &ring,
+                    &outgoing,
+                    (ei, entry),
+                    (xi, exit),
+                    config,
+                    profile,
+                ) else {
+                    continue;
+                };
+                routes_by_entry[ei].push(routes.len());
+                routes.push(route);
+            }
+        }
+        set_back_yield_points(&mut routes, config.waiting_clearance_m);
+        if routes.is_empty() {
+            return Err(SimError::Map(format!(
+                "roundabout {id} has no entry from which an exit can be reached through the ring"
+            )));
+        }
+        let mut bounds = Bounds::empty();
+        for r in &routes {
+            for p in r.path.outline() {
+                bounds.extend(*p);
+            }
+        }
+        Ok(RoundaboutLayout {
+            roundabout: id,
+            centre: rb.centre,
+            radius_m: rb.radius_m,
+            entries,
+            exits,
+            routes,
+            routes_by_entry,
+            bounds,
+        })
+    }
+
+    /// Entries that have at least one route.
+    pub fn usable_entries(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.entries.len()).filter(|&e| !self.routes_by_entry[e].is_empty())
+    }
+
+    /// The first roundabout of the map (in id order) that has usable routes.
+    pub fn first_in(map: &Map, config: &LayoutConfig) -> Result<Self, SimError> {
+        let mut last_err = SimError::Map("the map has no roundabout".into());
+        for id in map.roundabouts.keys() {
+            match Self::new(map, *id, config) {
+                Ok(layout) => return Ok(layout),
+                Err(e) => last_err = e,
+            }
+        }
+        Err(last_err)
+    }
+}
+
+/// The largest car the world spawns (see `TrafficConfig`), m: waiting positions are
+/// checked with this footprint.
+const CAR_LENGTH_M: f64 = 4.9;
+const CAR_WIDTH_M: f64 = 2.0;
+/// Step of the search for a clear waiting position, and of the swept poses, m.
+const SET_BACK_STEP_M: f64 = 0.25;
+/// The farthest a yield point is moved back, m.
+const MAX_SET_BACK_M: f64 = 10.0;
+
+/// Moves each route's yield point back until a car waiting there (front at the point),
+/// grown by `clearance` on every side, touches none of the footprints that cars sweep
+/// along every route from another entry, from just before its merge point to a little
+/// past its exit.
+fn set_back_yield_points(routes: &mut [RingRoute], clearance: f64) {
+    let swept: Vec<(usize, Vec<OrientedBox>)> = routes
+        .iter()
+        .map(|r| {
+            let (from, to) = (r.merge_s - 3.0, (r.exit_s + 10.0).min(r.path.length()));
+            let n = ((to - from) / SET_BACK_STEP_M).ceil().max(0.0) as usize;
+            let boxes = (0..=n)
+                .map(|k| {
+                    let (p, h) = r.path.pose_at(from + k as f64 * SET_BACK_STEP_M);
+                    OrientedBox::new(p, h, CAR_LENGTH_M, CAR_WIDTH_M)
+                })
+                .collect();
+            (r.entry, boxes)
+        })
+        .collect();
+    for route in routes.iter_mut() {
+        let others: Vec<&OrientedBox> = swept
+            .iter()
+            .filter(|(entry, _)| *entry != route.entry)
+            .flat_map(|(_, boxes)| boxes.iter())
+            .collect();
+        let clear_at = |front_s: f64| {
+            let (p, h) = route.path.pose_at(front_s - CAR_LENGTH_M / 2.0);
+            let waiting = OrientedBox::new(
+                p,
+                h,
+                CAR_LENGTH_M + 2.0 * clearance,
+                CAR_WIDTH_M + 2.0 * clearance,
+            );
+            others.iter().all(|b| !b.overlaps(&waiting))
+        };
+        let mut s = route.yield_s;
+        let lowest = (route.yield_s - MAX_SET_BACK_M).max(CAR_LENGTH_M);
+        while s - SET_BACK_STEP_M >= lowest && !clear_at(s) {
+            s -= SET_BACK_STEP_M;
+        }
+        route.yield_s = s;
+    }
+}
+
+/// One route: the lanes from the entry lane to the exit lane through the ring, extended
+/// backwards to `approach_m` before the yield line and forwards to `exit_m` after the exit.
+#[allow(clippy::too_many_arguments)]
+fn build_route(
+    map: &Map,
+    rb: &Roundabout,
+    ring: &BTreeSet<LaneId>,
+    outgoing: &BTreeMap<LaneId, Vec<ConnectionId>>,
+    (entry_index, entry): (usize, &Entry),
+    (exit_index, exit): (usize, &Exit),
+    config: &LayoutConfig,
+    profile: SpeedProfile,
+) -> Option<RingRoute> {
+    let core = shortest_through_ring(map, ring, outgoing, entry.lane, exit.lane)?;
+    let entry_lane = map.lanes.get(&entry.lane)?;
+    let entry_len = polyline_length(&entry_lane.centre);
+    // Yield line on the entry lane, as a distance from the lane's start.
+    let yield_on_entry = rb
+        .yield_lines
+        .iter()
+        .filter_map(|id| map.stop_lines.get(id))
+        .find(|l| l.lanes.contains(&entry.lane))
+        .map(|l| l.s_on_lane_m.clamp(0.0, entry_len));
+    // Walk back until the approach is long enough or the map ends.
+    let mut before: Vec<PieceKey> = Vec::new();
+    let mut behind = yield_on_entry.unwrap_or(entry_len);
+    let mut lane = entry.lane;
+    let mut seen = BTreeSet::from([lane]);
+    while behind < config.approach_m && before.len() < 2 * MAX_EXTENSION_LANES {
+        let Some(c) = map
+            .connections
+            .values()
+            .find(|c| c.to == lane && !ring.contains(&c.from) && !seen.contains(&c.from))
+        else {
+            break;
+        };
+        let from = map.lanes.get(&c.from)?;
+        before.push(PieceKey::Connection(c.id));
+        before.push(PieceKey::Lane(c.from));
+        behind += c.length_m + polyline_length(&from.centre);
+        seen.insert(c.from);
+        lane = c.from;
+    }
+    before.reverse();
+    let trim = (behind - config.approach_m).max(0.0);
+    let mut keys = before;
+    keys.extend(core.iter().copied());
+    // Walk on past the exit lane.
+    let exit_lane = map.lanes.get(&exit.lane)?;
+    let mut ahead = polyline_length(&exit_lane.centre);
+    let mut lane = exit.lane;
+    let mut seen = BTreeSet::from([lane]);
+    for _ in 0..MAX_EXTENSION_LANES {
+        if ahead >= config.exit_m {
+            break;
+        }
+        let next = outgoing.get(&lane).and_then(|cs| {
+            cs.iter()
+                .filter_map(|c| map.connections.get(c))
+                .find(|c| !ring.contains(&c.to) && !seen.contains(&c.to))
+        });
+        let Some(c) = next else { break };
+        let to = map.lanes.get(&c.to)?;
+        keys.push(PieceKey::Connection(c.id));
+        keys.push(PieceKey::Lane(c.to));
+        ahead += c.length_m + polyline_length(&to.centre);
+        seen.insert(c.to);
+        lane = c.to;
+    }
+    let path = Path::new(map, &keys, trim, profile)?;
+    let lane_start = |id: LaneId| {
+        path.pieces()
+            .iter()
+            .find(|p| p.key == PieceKey::Lane(id))
+            .map(|p| p.s_start)
+    };
+    let entry_start = lane_start(entry.lane)?;
+    let ring_lanes: Vec<(LaneId, f64)> = path
+        .pieces()
+        .iter()
+        .filter_map(|p| match p.key {
+            PieceKey::Lane(l) if ring.contains(&l) => Some((l, p.s_start)),
+            _ => None,
+        })
+        .collect();
+    let &(merge_lane, merge_s) = ring_lanes.first()?;
+    let exit_s = lane_start(exit.lane)?;
+    let yield_s = yield_on_entry.map_or(merge_s, |y| (entry_start + y).min(merge_s));
+    Some(RingRoute {
+        entry: entry_index,
+        exit: exit_index,
+        path,
+        yield_s,
+        merge_s,
+        merge_lane,
+        exit_s,
+        ring_lanes,
+    })
+}
+
+/// Shortest chain of pieces from the start of lane `from` to the end of lane `to` that
+/// crosses at most [`MAX_LANES_BEFORE_RING`] lanes before the ring, then only ring lanes.
+fn shortest_through_ring(
+    map: &Map,
+    ring: &BTreeSet<LaneId>,
+    outgoing: &BTreeMap<LaneId, Vec<ConnectionId>>,
+    from: LaneId,
+    to: LaneId,
+) -> Option<Vec<PieceKey>> {
+    // State: (lane, lanes crossed before reaching the ring, whether the ring was reached).
+    type State = (LaneId, usize, bool);
+    #[derive(PartialEq)]
+    struct Item(f64, State);
+    impl Eq for Item {}
+    impl Ord for Item {
+        fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+            o.0.total_cmp(&self.0).then_with(|| o.1.cmp(&self.1))
+        }
+    }
+    impl PartialOrd for Item {
+        fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+            Some(self.cmp(o))
+        }
+    }
+    let start: State = (from, 0, false);
+    let mut best: BTreeMap<State, (f64, Option<(State, ConnectionId)>)> = BTreeMap::new();
+    best.insert(start, (0.0, None));
+    let mut heap = BinaryHeap::from([Item(0.0, start)]);
+    let mut goal = None;
+    while let Some(Item(d, state)) = heap.pop() {
+        if best.get(&state).is_some_and(|(b, _)| d > *b) {
+            continue;
+        }
+        let (lane, crossed, in_ring) = state;
+        if lane == to && in_ring {
+            goal = Some(state);
+            break;
+        }
+        let lane_len = map.lanes.get(&lane).map_or(0.0, |l| l.length_m);
+        for c in outgoing.get(&lane).into_iter().flatten() {
+            let Some(conn) = map.connections.get(c) else {
+                continue;
+            };
+            let next_in_ring = ring.contains(&conn.to);
+            // Into the ring, or from the ring onto the exit lane: both count as in the ring.
+            let next = if next_in_ring || (conn.to == to && in_ring) {
+                (conn.to, crossed, true)
+            } else if !in_ring && crossed < MAX_LANES_BEFORE_RING {
+                (conn.to, crossed + 1, false)
+            } else {
+                continue;
+            };
+            let nd = d + lane_len + conn.length_m;
+            if best.get(&next).is_none_or(|(b, _)| nd < *b) {
+                best.insert(next, (nd, Some((state, *c))));
+                heap.push(Item(nd, next));
+            }
+        }
+    }
+    let mut state = goal?;
+    let mut keys = vec![PieceKey::Lane(state.0)];
+    while let Some((_, Some((prev, c)))) = best.get(&state) {
+        keys.push(PieceKey::Connection(*c));
+        keys.push(PieceKey::Lane(prev.0));
+        state = *prev;
+    }
+    keys.reverse();
+    Some(keys)
+}

@@ -1,0 +1,138 @@
+//! A scene: a map plus the states of the road users on it at one instant.
+//!
+//! This is the only thing the bird's-eye renderer ([`crate::render`]) and the rerun logging
+//! of the pipeline look at, so a recorded real log projected into the map frame renders
+//! exactly like the simulator. Positions are in the map's metric frame (x east, y north).
+
+use maps::{LaneId, Map, Point};
+use serde::{Deserialize, Serialize};
+
+/// What kind of road user an actor is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ActorKind {
+    Car,
+    Pedestrian,
+}
+
+/// One road user at one instant. `position` is the centre of its footprint.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Actor {
+    /// Stable over the actor's life; never reused within an episode.
+    pub id: u32,
+    pub kind: ActorKind,
+    pub position: Point,
+    /// Radians counter-clockwise from east.
+    pub heading_rad: f64,
+    pub speed_mps: f64,
+    pub length_m: f64,
+    pub width_m: f64,
+    /// The lane it is on, when known (None in a junction or for a logged actor).
+    pub lane: Option<LaneId>,
+    /// The driver's style in [0, 1] (shorter accepted gaps, higher speed), when known.
+    pub aggressiveness: Option<f64>,
+}
+
+impl Actor {
+    /// The actor's footprint.
+    pub fn footprint(&self) -> OrientedBox {
+        OrientedBox::new(self.position, self.heading_rad, self.length_m, self.width_m)
+    }
+}
+
+/// A rectangle with a heading: the footprint of a vehicle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OrientedBox {
+    pub centre: Point,
+    /// Unit vector along the length (the heading).
+    pub axis: Point,
+    pub half_length: f64,
+    pub half_width: f64,
+}
+
+impl OrientedBox {
+    pub fn new(centre: Point, heading_rad: f64, length: f64, width: f64) -> Self {
+        let (sin, cos) = heading_rad.sin_cos();
+        OrientedBox {
+            centre,
+            axis: Point::new(cos, sin),
+            half_length: length / 2.0,
+            half_width: width / 2.0,
+        }
+    }
+
+    /// Corners counter-clockwise: front-right, front-left, rear-left, rear-right.
+    pub fn corners(&self) -> [Point; 4] {
+        let f = self.axis.scale(self.half_length);
+        let l = self.axis.perp().scale(self.half_width);
+        let c = self.centre;
+        [
+            c.add(f).sub(l),
+            c.add(f).add(l),
+            c.sub(f).add(l),
+            c.sub(f).sub(l),
+        ]
+    }
+
+    /// Half the extent along a unit direction `d` (projection radius).
+    fn radius_along(&self, d: Point) -> f64 {
+        self.half_length * self.axis.dot(d).abs() + self.half_width * self.axis.perp().dot(d).abs()
+    }
+
+    /// Whether two boxes overlap (separating axis test on the four edge normals).
+    pub fn overlaps(&self, other: &OrientedBox) -> bool {
+        let t = other.centre.sub(self.centre);
+        [self.axis, self.axis.perp(), other.axis, other.axis.perp()]
+            .iter()
+            .all(|&d| t.dot(d).abs() <= self.radius_along(d) + other.radius_along(d))
+    }
+
+    /// Radius of the circle around the centre that holds the box.
+    pub fn bounding_radius(&self) -> f64 {
+        self.half_length.hypot(self.half_width)
+    }
+}
+
+/// A map and its road users at one instant, from the point of view of one of them (the
+/// ego), with the path the ego means to drive.
+#[derive(Debug, Clone)]
+pub struct Scene<'a> {
+    pub map: &'a Map,
+    pub time_s: f64,
+    /// Every road user, the ego included.
+    pub actors: Vec<Actor>,
+    /// Index of the ego in `actors`.
+    pub ego: usize,
+    /// The ego's intended path (its route), in the map frame, in driving order.
+    pub ego_path: &'a [Point],
+}
+
+impl Scene<'_> {
+    pub fn ego_actor(&self) -> Option<&Actor> {
+        self.actors.get(self.ego)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn boxes_overlap_and_separate() {
+        let a = OrientedBox::new(Point::new(0.0, 0.0), 0.0, 4.0, 2.0);
+        // Side by side with a 0.2 m gap.
+        let b = OrientedBox::new(Point::new(0.0, 2.2), 0.0, 4.0, 2.0);
+        assert!(!a.overlaps(&b));
+        let c = OrientedBox::new(Point::new(0.0, 1.8), 0.0, 4.0, 2.0);
+        assert!(a.overlaps(&c));
+        // Rotated 45 degrees: its corner reaches 2.12 m along x from its centre.
+        let d = OrientedBox::new(Point::new(3.9, 0.0), std::f64::consts::FRAC_PI_4, 3.0, 3.0);
+        assert!(a.overlaps(&d));
+        let e = OrientedBox::new(Point::new(4.2, 0.0), std::f64::consts::FRAC_PI_4, 3.0, 3.0);
+        assert!(!e.overlaps(&a));
+        // Corners of an east-facing box: front-right is east and south of the centre.
+        let k = a.corners();
+        assert_eq!(k[0], Point::new(2.0, -1.0));
+        assert_eq!(k[2], Point::new(-2.0, 1.0));
+    }
+}

@@ -1,0 +1,680 @@
+//! Roundabout insertion (after the Parma study): the ego starts before an entry of a
+//! roundabout and must join the circulating traffic and leave at its exit.
+//!
+//! - Actions: **Permitted** (comfort acceleration up to the target speed), **Not
+//!   Permitted** (decelerate by min(max deceleration, the deceleration that stops the
+//!   front at the yield line); full braking once past it), **Caution** (speed held at half
+//!   the target, within a ±0.5 m/s band). Under every action the ego also keeps an IDM
+//!   following distance to a vehicle ahead on its own path (not to vehicles coming round
+//!   the ring: whether to go in front of those is the decision being learned).
+//! - Reward per step: `r_danger + r_terminal + r_indecision + r_speed`, see
+//!   [`RewardConfig`]; σ = 1 − aggressiveness.
+//! - Termination: Reached (the ego's centre passes a point `goal_past_exit_m` into its exit
+//!   lane), Crashed (its footprint overlaps another's), OffRoad (its centre leaves the
+//!   navigable area), TimeOver (`time_limit_s`).
+//! - The ego's aggressiveness is drawn uniformly in [0, 1] per episode for training, or
+//!   fixed for evaluation; other drivers draw their own.
+
+use std::sync::Arc;
+
+use maps::{Map, Point};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
+use crate::error::SimError;
+use crate::render::{BevConfig, BevRenderer, FrameStack};
+use crate::roundabout::{LayoutConfig, RoundaboutLayout};
+use crate::scene::Scene;
+use crate::world::{Driver, EgoConfig, TrafficConfig, TrafficLevel, World};
+
+/// The three actions, by index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Action {
+    Permitted = 0,
+    NotPermitted = 1,
+    Caution = 2,
+}
+
+impl Action {
+    pub const ALL: [Action; 3] = [Action::Permitted, Action::NotPermitted, Action::Caution];
+    pub const NAMES: [&'static str; 3] = ["permitted", "not_permitted", "caution"];
+
+    pub fn from_index(i: usize) -> Option<Action> {
+        Action::ALL.get(i).copied()
+    }
+}
+
+/// Reward constants (the Parma paper's by default).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RewardConfig {
+    /// Per step, times σ, while the gap to the vehicle ahead is under `headway_s` of travel.
+    pub headway_penalty: f64,
+    pub headway_s: f64,
+    /// Per step, times σ, while inside the ring in front of a circulating vehicle that
+    /// would reach the ego within `cut_in_s` of its travel.
+    pub cut_in_penalty: f64,
+    pub cut_in_s: f64,
+    pub reach: f64,
+    /// Crash (and off-road): −(crash_base + crash_sigma · σ).
+    pub crash_base: f64,
+    pub crash_sigma: f64,
+    pub time_over: f64,
+    /// Switching Permitted → Caution, and Permitted → Not Permitted.
+    pub to_caution_penalty: f64,
+    pub to_not_permitted_penalty: f64,
+    /// Per step, times speed / target speed.
+    pub speed: f64,
+}
+
+impl Default for RewardConfig {
+    fn default() -> Self {
+        RewardConfig {
+            headway_penalty: 0.002,
+            headway_s: 1.0,
+            cut_in_penalty: 0.005,
+            cut_in_s: 3.0,
+            reach: 1.0,
+            crash_base: 0.2,
+            crash_sigma: 1.8,
+            time_over: 1.0,
+            to_caution_penalty: 0.05,
+            to_not_permitted_penalty: 0.15,
+            speed: 0.0045,
+        }
+    }
+}
+
+/// Everything about the task; TOML-friendly, every field defaulted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct InsertionConfig {
+    pub traffic: TrafficConfig,
+    pub ego: EgoConfig,
+    pub layout: LayoutConfig,
+    pub observation: BevConfig,
+    pub reward: RewardConfig,
+    /// The ego's aggressiveness; None draws it uniformly in [0, 1] every episode (training).
+    pub aggressiveness: Option<f64>,
+    pub time_limit_s: f64,
+    /// The ego's centre starts this far before its yield line, m.
+    pub start_distance_m: f64,
+    /// The ego starts at a speed drawn uniformly in this fraction of its target speed.
+    pub start_speed_fraction: (f64, f64),
+    /// The goal: this far into the exit lane, m.
+    pub goal_past_exit_m: f64,
+    /// Acceleration and deceleration of Permitted and Caution, m/s².
+    pub comfort_accel_mps2: f64,
+    pub comfort_decel_mps2: f64,
+    /// Caution holds the speed within this band around half the target, m/s.
+    pub caution_band_mps: f64,
+    /// Speeds are divided by this in the scalar inputs, m/s.
+    pub speed_scale_mps: f64,
+}
+
+impl Default for InsertionConfig {
+    fn default() -> Self {
+        InsertionConfig {
+            traffic: TrafficConfig::default(),
+            ego: EgoConfig::default(),
+            layout: LayoutConfig::default(),
+            observation: BevConfig::default(),
+            reward: RewardConfig::default(),
+            aggressiveness: None,
+            time_limit_s: 30.0,
+            start_distance_m: 25.0,
+            start_speed_fraction: (0.3, 0.8),
+            goal_past_exit_m: 5.0,
+            comfort_accel_mps2: 2.0,
+            comfort_decel_mps2: 2.5,
+            caution_band_mps: 0.5,
+            speed_scale_mps: 15.0,
+        }
+    }
+}
+
+/// Number of scalar inputs: speed, target speed, aggressiveness, last action (one-hot).
+pub const SCALARS: usize = 3 + Action::ALL.len();
+
+/// What is prepared once per map and shared by every environment on it (read-only):
+/// the routes of each usable roundabout and its static bird's-eye raster.
+#[derive(Debug)]
+pub struct InsertionSetup {
+    map: Arc<Map>,
+    config: InsertionConfig,
+    roundabouts: Vec<(Arc<RoundaboutLayout>, BevRenderer)>,
+}
+
+impl InsertionSetup {
+    /// Prepares every roundabout of `map` that has a route from an entry through the ring
+    /// to an exit. Fails when there is none, or the configuration is invalid.
+    pub fn new(map: Arc<Map>, config: InsertionConfig) -> Result<Arc<Self>, SimError> {
+        validate(&config)?;
+        let mut roundabouts = Vec::new();
+        let mut problems = Vec::new();
+        for id in map.roundabouts.keys() {
+            match RoundaboutLayout::new(&map, *id, &config.layout) {
+                Ok(layout) => {
+                    let renderer =
+                        BevRenderer::new(&map, layout.bounds, config.observation.clone())?;
+                    roundabouts.push((Arc::new(layout), renderer));
+                }
+                Err(e) => problems.push(e.to_string()),
+            }
+        }
+        if roundabouts.is_empty() {
+            return Err(SimError::Map(if problems.is_empty() {
+                "the map has no roundabout".into()
+            } else {
+                problems.join("; ")
+            }));
+        }
+        Ok(Arc::new(InsertionSetup {
+            map,
+            config,
+            roundabouts,
+        }))
+    }
+
+    pub fn map(&self) -> &Arc<Map> {
+        &self.map
+    }
+
+    pub fn config(&self) -> &InsertionConfig {
+        &self.config
+    }
+
+    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
+        self.roundabouts.iter().map(|(l, _)| l)
+    }
+
+    pub fn observation_spec(&self) -> ObservationSpec {
+        let o = &self.config.observation;
+        ObservationSpec {
+            channels: o.channels(),
+            height: o.height,
+            width: o.width,
+            scalars: SCALARS,
+        }
+    }
+}
+
+fn validate(c: &InsertionConfig) -> Result<(), SimError> {
+    c.observation.validate()?;
+    let positive = [
+        ("traffic.step_s", c.traffic.step_s),
+        ("time_limit_s", c.time_limit_s),
+        ("speed_scale_mps", c.speed_scale_mps),
+        ("comfort_accel_mps2", c.comfort_accel_mps2),
+        ("comfort_decel_mps2", c.comfort_decel_mps2),
+    ];
+    for (name, v) in positive {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(SimError::Config(format!("{name} = {v} must be positive")));
+        }
+    }
+    if let Some(a) = c.aggressiveness
+        && !(0.0..=1.0).contains(&a)
+    {
+        return Err(SimError::Config(format!(
+            "aggressiveness = {a} must lie in [0, 1]"
+        )));
+    }
+    Ok(())
+}
+
+/// What the rule-based baselines may look at (the learned agents see only the
+/// [`Observation`]): facts of the current state that a perception stack would report.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct InsertionState {
+    /// Straight-line distance from the ego to the nearest vehicle on the ring (infinite when
+    /// the ring is empty), m.
+    pub nearest_circulating_m: f64,
+    /// The ego's front is past its yield line.
+    pub ego_entered: bool,
+    /// From the ego's front to the yield line (negative past it), m.
+    pub to_yield_line_m: f64,
+    pub speed_mps: f64,
+    pub target_speed_mps: f64,
+    pub aggressiveness: f64,
+}
+
+/// How one episode went.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeSummary {
+    pub outcome: Outcome,
+    pub steps: usize,
+    pub episode_return: f64,
+    pub mean_speed_mps: f64,
+    /// From the start until the ego's front passed the yield line, s (None if it never did).
+    pub time_to_enter_s: Option<f64>,
+    pub aggressiveness: f64,
+}
+
+/// The roundabout insertion task as an [`Env`].
+#[derive(Debug)]
+pub struct RoundaboutInsertion {
+    setup: Arc<InsertionSetup>,
+    config: InsertionConfig,
+    roundabout: usize,
+    world: Option<World>,
+    route: usize,
+    aggressiveness: f64,
+    last_action: Action,
+    steps: usize,
+    start_time_s: f64,
+    goal_s: f64,
+    episode_return: f64,
+    speed_sum: f64,
+    entered_at_s: Option<f64>,
+    outcome: Option<Outcome>,
+    trajectory: Vec<Point>,
+    frame: Vec<u8>,
+    stack: FrameStack,
+    /// The ego's following model (IDM with a middle driver's parameters).
+    follower: Driver,
+    /// Whether observations are drawn (off: empty layers, for policies that do not read them).
+    rendering: bool,
+}
+
+impl RoundaboutInsertion {
+    pub fn new(setup: Arc<InsertionSetup>) -> Self {
+        let config = setup.config.clone();
+        let stack = FrameStack::new(config.observation.frame_len(), config.observation.stack);
+        let follower = Driver::new(&config.traffic.drivers, 0.5);
+        RoundaboutInsertion {
+            setup,
+            config,
+            roundabout: 0,
+            world: None,
+            route: 0,
+            aggressiveness: 0.5,
+            last_action: Action::Permitted,
+            steps: 0,
+            start_time_s: 0.0,
+            goal_s: 0.0,
+            episode_return: 0.0,
+            speed_sum: 0.0,
+            entered_at_s: None,
+            outcome: None,
+            trajectory: Vec::new(),
+            frame: Vec::new(),
+            stack,
+            follower,
+            rendering: true,
+        }
+    }
+
+    /// Turns drawing the bird's-eye layers on or off (off: observations carry empty
+    /// layers; the episodes themselves do not change).
+    pub fn set_rendering(&mut self, on: bool) {
+        self.rendering = on;
+    }
+
+    /// Sets the traffic level of the following episodes.
+    pub fn set_traffic(&mut self, level: TrafficLevel) {
+        self.config.traffic.level = level;
+    }
+
+    /// Fixes the ego's aggressiveness (evaluation) or, with None, draws it per episode.
+    pub fn set_aggressiveness(&mut self, aggressiveness: Option<f64>) {
+        self.config.aggressiveness = aggressiveness.map(|a| a.clamp(0.0, 1.0));
+    }
+
+    pub fn config(&self) -> &InsertionConfig {
+        &self.config
+    }
+
+    pub fn world(&self) -> Option<&World> {
+        self.world.as_ref()
+    }
+
+    /// The episode's outcome once it has ended.
+    pub fn outcome(&self) -> Option<Outcome> {
+        self.outcome
+    }
+
+    /// The ego's positions so far this episode (one per step, the start included).
+    pub fn trajectory(&self) -> &[Point] {
+        &self.trajectory
+    }
+
+    /// The newest bird's-eye frame (`[layer, row, column]`, see [`BevConfig::layers`]).
+    pub fn newest_frame(&self) -> &[u8] {
+        self.stack.newest()
+    }
+
+    /// The current scene (None before the first reset).
+    pub fn scene(&self) -> Option<Scene<'_>> {
+        let world = self.world.as_ref()?;
+        let ego = world.ego_index()?;
+        let mut actors = world.actors();
+        actors[ego].aggressiveness = Some(self.aggressiveness);
+        Some(Scene {
+            map: &self.setup.map,
+            time_s: world.time_s() - self.start_time_s,
+            actors,
+            ego,
+            ego_path: world.route(&world.vehicles()[ego]).path.outline(),
+        })
+    }
+
+    pub fn summary(&self) -> EpisodeSummary {
+        EpisodeSummary {
+            outcome: self.outcome.unwrap_or(Outcome::TimeOver),
+            steps: self.steps,
+            episode_return: self.episode_return,
+            mean_speed_mps: if self.steps > 0 {
+                self.speed_sum / self.steps as f64
+            } else {
+                0.0
+            },
+            time_to_enter_s: self.entered_at_s,
+            aggressiveness: self.aggressiveness,
+        }
+    }
+
+    /// What the rule-based baselines see.
+    pub fn state(&self) -> InsertionState {
+        let Some((world, ego)) = self.world_and_ego() else {
+            return InsertionState {
+                nearest_circulating_m: f64::INFINITY,
+                ego_entered: false,
+                to_yield_line_m: 0.0,
+                speed_mps: 0.0,
+                target_speed_mps: 0.0,
+                aggressiveness: self.aggressiveness,
+            };
+        };
+        let me = &world.vehicles()[ego];
+        let route = world.route(me);
+        let nearest_circulating_m = world
+            .vehicles()
+            .iter()
+            .filter(|v| !v.is_ego())
+            .filter(|v| {
+                let r = world.route(v);
+                v.s >= r.merge_s && v.s < r.exit_s
+            })
+            .map(|v| v.position.distance(me.position))
+            .fold(f64::INFINITY, f64::min);
+        InsertionState {
+            nearest_circulating_m,
+            ego_entered: me.committed,
+            to_yield_line_m: route.yield_s - (me.s + me.length / 2.0),
+            speed_mps: me.speed,
+            target_speed_mps: self.target_speed(world, ego),
+            aggressiveness: self.aggressiveness,
+        }
+    }
+
+    fn world_and_ego(&self) -> Option<(&World, usize)> {
+        let w = self.world.as_ref()?;
+        Some((w, w.ego_index()?))
+    }
+
+    /// The speed the ego aims for under Permitted: its route's nominal speed (limit and
+    /// curves) at its front.
+    fn target_speed(&self, world: &World, ego: usize) -> f64 {
+        let me = &world.vehicles()[ego];
+        world
+            .route(me)
+            .path
+            .speed_at(me.s + me.length / 2.0)
+            .max(0.5)
+    }
+
+    /// The ego's acceleration under `action`.
+    fn ego_accel(&self, world: &World, ego: usize, action: Action) -> f64 {
+        let c = &self.config;
+        let me = &world.vehicles()[ego];
+        let v = me.speed;
+        let target = self.target_speed(world, ego);
+        let dt = c.traffic.step_s;
+        let toward =
+            |goal: f64| ((goal - v) / dt).clamp(-c.comfort_decel_mps2, c.comfort_accel_mps2);
+        let chosen = match action {
+            Action::Permitted => toward(target),
+            Action::Caution => {
+                let half = target / 2.0;
+                if (v - half).abs() <= c.caution_band_mps {
+                    0.0
+                } else {
+                    toward(half)
+                }
+            }
+            Action::NotPermitted => {
+                let to_line = world.route(me).yield_s - (me.s + me.length / 2.0);
+                if me.committed || to_line <= 0.0 {
+                    -c.ego.max_brake_mps2
+                } else if v <= 0.0 {
+                    0.0
+                } else {
+                    -(v * v / (2.0 * to_line.max(0.05))).min(c.ego.max_brake_mps2)
+                }
+            }
+        };
+        let follow = world.leader(ego, false).map_or(f64::INFINITY, |l| {
+            self.follower
+                .idm(v, target.max(0.1), Some((l.gap_m, l.closing_mps)))
+        });
+        chosen.min(follow)
+    }
+
+    fn observation(&self) -> Observation {
+        let mut layers = Vec::new();
+        if self.rendering {
+            self.stack.write(&mut layers);
+        }
+        let mut scalars = vec![0.0f32; SCALARS];
+        if let Some((world, ego)) = self.world_and_ego() {
+            let scale = self.config.speed_scale_mps;
+            scalars[0] = (world.vehicles()[ego].speed / scale) as f32;
+            scalars[1] = (self.target_speed(world, ego) / scale) as f32;
+        }
+        scalars[2] = self.aggressiveness as f32;
+        scalars[3 + self.last_action as usize] = 1.0;
+        Observation { layers, scalars }
+    }
+
+    fn render(&mut self) {
+        if !self.rendering {
+            return;
+        }
+        let mut frame = std::mem::take(&mut self.frame);
+        if let Some(scene) = self.scene() {
+            self.setup.roundabouts[self.roundabout]
+                .1
+                .render(&scene, &mut frame);
+        }
+        self.frame = frame;
+    }
+
+    /// Reward terms that apply every step: speed, indecision, danger.
+    fn step_reward(&self, world: &World, ego: usize, action: Action) -> f64 {
+        let r = &self.config.reward;
+        let me = &world.vehicles()[ego];
+        let sigma = 1.0 - self.aggressiveness;
+        let mut reward = r.speed * me.speed / self.target_speed(world, ego);
+        if self.last_action == Action::Permitted {
+            reward -= match action {
+                Action::Caution => r.to_caution_penalty,
+                Action::NotPermitted => r.to_not_permitted_penalty,
+                Action::Permitted => 0.0,
+            };
+        }
+        if world
+            .leader(ego, false)
+            .is_some_and(|l| l.gap_m < me.speed * r.headway_s)
+        {
+            reward -= r.headway_penalty * sigma;
+        }
+        let route = world.route(me);
+        let in_ring = me.committed && me.s < route.exit_s;
+        if in_ring && self.cut_in(world, ego) {
+            reward -= r.cut_in_penalty * sigma;
+        }
+        reward
+    }
+
+    /// Whether a circulating vehicle has the ego as the vehicle ahead of it and would
+    /// reach it within `cut_in_s` at its speed.
+    fn cut_in(&self, world: &World, ego: usize) -> bool {
+        let limit = self.config.reward.cut_in_s;
+        (0..world.vehicles().len()).any(|j| {
+            let v = &world.vehicles()[j];
+            if v.is_ego() || !v.committed {
+                return false;
+            }
+            world
+                .leader(j, true)
+                .is_some_and(|l| l.index == ego && l.gap_m.max(0.0) < limit * v.speed)
+        })
+    }
+}
+
+impl Env for RoundaboutInsertion {
+    fn observation_spec(&self) -> ObservationSpec {
+        self.setup.observation_spec()
+    }
+
+    fn action_count(&self) -> usize {
+        Action::ALL.len()
+    }
+
+    fn action_names(&self) -> &'static [&'static str] {
+        &Action::NAMES
+    }
+
+    fn reset(&mut self, seed: u64) -> Observation {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let pick = |rng: &mut ChaCha8Rng, n: usize| {
+            ((rng.random::<f64>() * n as f64) as usize).min(n.saturating_sub(1))
+        };
+        self.roundabout = pick(&mut rng, self.setup.roundabouts.len());
+        let layout = Arc::clone(&self.setup.roundabouts[self.roundabout].0);
+        let entries: Vec<usize> = layout.usable_entries().collect();
+        let entry = entries[pick(&mut rng, entries.len())];
+        let routes = &layout.routes_by_entry[entry];
+        self.route = routes[pick(&mut rng, routes.len())];
+        let drawn_aggressiveness: f64 = rng.random();
+        self.aggressiveness = self.config.aggressiveness.unwrap_or(drawn_aggressiveness);
+        let speed_draw: f64 = rng.random();
+        let world_seed: u64 = rng.random();
+        let mut world = World::new(
+            Arc::clone(&layout),
+            self.config.traffic,
+            self.config.ego,
+            world_seed,
+        );
+        world.warm_up(self.config.traffic.warm_up_s);
+        let route = &layout.routes[self.route];
+        let s0 = (route.yield_s - self.config.start_distance_m - self.config.ego.length_m / 2.0)
+            .max(self.config.ego.length_m / 2.0);
+        let (lo, hi) = self.config.start_speed_fraction;
+        let target = route.path.speed_at(s0 + self.config.ego.length_m / 2.0);
+        let speed = target * (lo + (hi - lo) * speed_draw);
+        world.insert_ego(self.route, s0, speed, 8.0);
+        self.goal_s = (route.exit_s + self.config.goal_past_exit_m).min(route.path.length() - 0.1);
+        self.start_time_s = world.time_s();
+        self.world = Some(world);
+        self.last_action = Action::Permitted;
+        self.steps = 0;
+        self.episode_return = 0.0;
+        self.speed_sum = 0.0;
+        self.entered_at_s = None;
+        self.outcome = None;
+        self.trajectory.clear();
+        if let Some((w, e)) = self.world_and_ego() {
+            let p = w.vehicles()[e].position;
+            self.trajectory.push(p);
+        }
+        self.render();
+        if self.rendering {
+            self.stack.reset(&self.frame);
+        }
+        self.observation()
+    }
+
+    fn step(&mut self, action: usize) -> Step {
+        let finished = Step {
+            observation: self.observation(),
+            reward: 0.0,
+            outcome: Some(self.outcome.unwrap_or(Outcome::TimeOver)),
+        };
+        if self.outcome.is_some() {
+            return finished;
+        }
+        let Some(mut world) = self.world.take() else {
+            return finished; // never reset
+        };
+        let action = Action::from_index(action).unwrap_or(Action::NotPermitted);
+        let outcome = match world.ego_index() {
+            Some(ego) => {
+                let accel = self.ego_accel(&world, ego, action);
+                world.step(accel);
+                self.resolve(&mut world, action)
+            }
+            None => (0.0, Some(Outcome::TimeOver)),
+        };
+        self.world = Some(world);
+        let (reward, outcome) = outcome;
+        self.last_action = action;
+        self.outcome = outcome;
+        self.episode_return += reward;
+        self.render();
+        if self.rendering {
+            self.stack.push(&self.frame);
+        }
+        Step {
+            observation: self.observation(),
+            reward: reward as f32,
+            outcome,
+        }
+    }
+}
+
+impl RoundaboutInsertion {
+    /// After a world step: the reward and whether (and how) the episode ended.
+    fn resolve(&mut self, world: &mut World, action: Action) -> (f64, Option<Outcome>) {
+        let Some(ego) = world.ego_index() else {
+            return (0.0, Some(Outcome::TimeOver));
+        };
+        self.steps += 1;
+        let (speed, position, s, committed) = {
+            let me = &world.vehicles()[ego];
+            (me.speed, me.position, me.s, me.committed)
+        };
+        self.speed_sum += speed;
+        self.trajectory.push(position);
+        let elapsed = world.time_s() - self.start_time_s;
+        if committed && self.entered_at_s.is_none() {
+            self.entered_at_s = Some(elapsed);
+        }
+        let mut reward = self.step_reward(world, ego, action);
+        let r = self.config.reward;
+        let sigma = 1.0 - self.aggressiveness;
+        let raster = self.setup.roundabouts[self.roundabout].1.raster();
+        let outcome = if world.collision_with(ego).is_some() {
+            Some(Outcome::Crashed)
+        } else if !raster.navigable(position) {
+            Some(Outcome::OffRoad)
+        } else if s >= self.goal_s {
+            Some(Outcome::Reached)
+        } else if elapsed >= self.config.time_limit_s - 1e-9 {
+            Some(Outcome::TimeOver)
+        } else {
+            None
+        };
+        reward += match outcome {
+            Some(Outcome::Reached) => r.reach,
+            Some(Outcome::Crashed | Outcome::OffRoad) => -(r.crash_base + r.crash_sigma * sigma),
+            Some(Outcome::TimeOver) => -r.time_over,
+            None => 0.0,
+        };
+        (reward, outcome)
+    }
+}

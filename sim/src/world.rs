@@ -1,0 +1,835 @@
+//! The traffic world around one roundabout: vehicles on the routes of a
+//! [`RoundaboutLayout`], moved every fixed step.
+//!
+//! - Other vehicles drive their route exactly (position = arc length along it): IDM
+//!   car-following behind the nearest vehicle ahead on their path, where "ahead" includes a
+//!   committed vehicle about to merge into a lane they are about to enter and that is nearer
+//!   to the merge point; before the yield line an uncommitted vehicle stops at the line
+//!   until it accepts a gap in circulating traffic (gap acceptance with a critical gap).
+//! - Each driver has an aggressiveness in [0, 1]: higher means a higher desired speed,
+//!   shorter headways, harder acceleration and shorter accepted gaps.
+//! - Vehicles enter at the upstream end of an approach and leave at the downstream end of
+//!   an exit; at most [`TrafficConfig::max_vehicles`] others are in the roundabout at once.
+//! - The ego (optional) is a kinematic bicycle: the caller chooses its acceleration, a pure
+//!   pursuit controller steers it along its route.
+//!
+//! Everything random comes from one ChaCha8 generator seeded at [`World::new`]; vehicles
+//! live in a `Vec` in spawn order, so a seed always gives the same world.
+
+use std::sync::Arc;
+
+use maps::Point;
+use rand::Rng;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::path::{PieceKey, wrap_angle};
+use crate::roundabout::{RingRoute, RoundaboutLayout};
+use crate::scene::{Actor, ActorKind, OrientedBox};
+use crate::spatial::UniformGrid;
+
+/// Traffic density, as in the Parma study: at most 4 / 6 / 8 other vehicles in the
+/// roundabout (its approaches, ring and exits) at once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrafficLevel {
+    Low,
+    Medium,
+    High,
+}
+
+impl TrafficLevel {
+    pub const ALL: [TrafficLevel; 3] =
+        [TrafficLevel::Low, TrafficLevel::Medium, TrafficLevel::High];
+
+    pub fn max_vehicles(self) -> usize {
+        match self {
+            TrafficLevel::Low => 4,
+            TrafficLevel::Medium => 6,
+            TrafficLevel::High => 8,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            TrafficLevel::Low => "low",
+            TrafficLevel::Medium => "medium",
+            TrafficLevel::High => "high",
+        }
+    }
+}
+
+impl std::str::FromStr for TrafficLevel {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "low" => Ok(TrafficLevel::Low),
+            "medium" => Ok(TrafficLevel::Medium),
+            "high" => Ok(TrafficLevel::High),
+            other => Err(format!(
+                "unknown traffic level `{other}` (low, medium or high)"
+            )),
+        }
+    }
+}
+
+/// A driver parameter at aggressiveness 0 and at 1 (linear in between).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Span {
+    pub passive: f64,
+    pub aggressive: f64,
+}
+
+impl Span {
+    const fn new(passive: f64, aggressive: f64) -> Self {
+        Span {
+            passive,
+            aggressive,
+        }
+    }
+    pub fn at(&self, aggressiveness: f64) -> f64 {
+        self.passive + (self.aggressive - self.passive) * aggressiveness.clamp(0.0, 1.0)
+    }
+}
+
+/// How drivers behave, from passive (aggressiveness 0) to aggressive (1).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DriverConfig {
+    /// Desired speed as a fraction of the path's nominal speed (limit and curves).
+    pub speed_factor: Span,
+    /// IDM desired time headway, s.
+    pub time_headway_s: Span,
+    /// IDM minimum gap, m.
+    pub min_gap_m: Span,
+    /// IDM maximum acceleration, m/s².
+    pub max_accel_mps2: Span,
+    /// IDM comfortable deceleration, m/s².
+    pub comfort_decel_mps2: Span,
+    /// Gap acceptance: time a circulating vehicle must be away from the merge point (beyond
+    /// the time to get there), s.
+    pub critical_gap_s: Span,
+    /// Hardest braking any vehicle can do, m/s².
+    pub max_brake_mps2: f64,
+}
+
+impl Default for DriverConfig {
+    fn default() -> Self {
+        DriverConfig {
+            speed_factor: Span::new(0.85, 1.15),
+            time_headway_s: Span::new(1.6, 0.8),
+            min_gap_m: Span::new(2.5, 1.5),
+            max_accel_mps2: Span::new(1.2, 2.5),
+            comfort_decel_mps2: Span::new(1.5, 3.0),
+            critical_gap_s: Span::new(4.0, 1.6),
+            max_brake_mps2: 8.0,
+        }
+    }
+}
+
+/// The traffic of a world.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct TrafficConfig {
+    pub level: TrafficLevel,
+    /// Overrides the level's cap on other vehicles when set.
+    pub max_vehicles: Option<usize>,
+    /// Simulation step, s.
+    pub step_s: f64,
+    /// While below the cap, new vehicles arrive at this mean rate, 1/s.
+    pub arrivals_per_s: f64,
+    /// Traffic is simulated this long before the ego appears, s.
+    pub warm_up_s: f64,
+    /// A spawn needs this much free road ahead of the new vehicle on its approach, m.
+    pub spawn_clearance_m: f64,
+    /// Drivers decide on a gap once their front is this close to the yield line, m.
+    pub decision_distance_m: f64,
+    /// Vehicles farther along the path than this are not looked at, m.
+    pub horizon_m: f64,
+    pub vehicle_length_m: Span,
+    pub vehicle_width_m: Span,
+    pub drivers: DriverConfig,
+}
+
+impl Default for TrafficConfig {
+    fn default() -> Self {
+        TrafficConfig {
+            level: TrafficLevel::Medium,
+            max_vehicles: None,
+            step_s: 0.1,
+            arrivals_per_s: 1.0,
+            warm_up_s: 20.0,
+            spawn_clearance_m: 12.0,
+            decision_distance_m: 12.0,
+            horizon_m: 60.0,
+            vehicle_length_m: Span::new(3.9, 4.9),
+            vehicle_width_m: Span::new(1.7, 2.0),
+            drivers: DriverConfig::default(),
+        }
+    }
+}
+
+impl TrafficConfig {
+    /// Cap on other vehicles in the roundabout.
+    pub fn cap(&self) -> usize {
+        self.max_vehicles.unwrap_or(self.level.max_vehicles())
+    }
+}
+
+/// A driver's parameters, drawn from its aggressiveness.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Driver {
+    pub aggressiveness: f64,
+    pub speed_factor: f64,
+    pub time_headway_s: f64,
+    pub min_gap_m: f64,
+    pub max_accel_mps2: f64,
+    pub comfort_decel_mps2: f64,
+    pub critical_gap_s: f64,
+}
+
+impl Driver {
+    pub fn new(config: &DriverConfig, aggressiveness: f64) -> Self {
+        let a = aggressiveness.clamp(0.0, 1.0);
+        Driver {
+            aggressiveness: a,
+            speed_factor: config.speed_factor.at(a),
+            time_headway_s: config.time_headway_s.at(a),
+            min_gap_m: config.min_gap_m.at(a),
+            max_accel_mps2: config.max_accel_mps2.at(a),
+            comfort_decel_mps2: config.comfort_decel_mps2.at(a),
+            critical_gap_s: config.critical_gap_s.at(a),
+        }
+    }
+
+    /// The intelligent driver model's acceleration at speed `v` towards desired speed `v0`,
+    /// behind a leader `gap` metres ahead (bumper to bumper) closing at `dv` m/s (None: free
+    /// road).
+    pub fn idm(&self, v: f64, v0: f64, leader: Option<(f64, f64)>) -> f64 {
+        let free = 1.0 - (v / v0.max(0.1)).powi(4);
+        let interaction = match leader {
+            Some((gap, dv)) => {
+                let wanted = self.min_gap_m
+                    + (v * self.time_headway_s
+                        + v * dv / (2.0 * (self.max_accel_mps2 * self.comfort_decel_mps2).sqrt()))
+                    .max(0.0);
+                (wanted / gap.max(0.01)).powi(2)
+            }
+            None => 0.0,
+        };
+        self.max_accel_mps2 * (free - interaction)
+    }
+}
+
+/// The ego's kinematic bicycle and its path-tracking controller.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct EgoConfig {
+    pub length_m: f64,
+    pub width_m: f64,
+    pub wheelbase_m: f64,
+    pub max_steer_rad: f64,
+    /// Pure pursuit look-ahead: `lookahead_min_m + lookahead_s * speed`, capped at 8 m.
+    pub lookahead_min_m: f64,
+    pub lookahead_s: f64,
+    pub max_accel_mps2: f64,
+    pub max_brake_mps2: f64,
+}
+
+impl Default for EgoConfig {
+    fn default() -> Self {
+        EgoConfig {
+            length_m: 4.5,
+            width_m: 1.85,
+            wheelbase_m: 2.7,
+            max_steer_rad: 0.6,
+            lookahead_min_m: 2.5,
+            lookahead_s: 0.5,
+            max_accel_mps2: 3.0,
+            max_brake_mps2: 8.0,
+        }
+    }
+}
+
+/// The ego's own state: the rear axle's position and the heading (kinematic bicycle).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Bicycle {
+    rear: Point,
+    heading: f64,
+}
+
+/// One vehicle of the world.
+#[derive(Debug, Clone)]
+pub struct Vehicle {
+    pub id: u32,
+    /// Index into the layout's routes.
+    pub route: usize,
+    /// Arc length of the vehicle's centre along its route, m.
+    pub s: f64,
+    pub speed: f64,
+    /// Acceleration applied in the last step, m/s².
+    pub accel: f64,
+    pub length: f64,
+    pub width: f64,
+    pub driver: Driver,
+    /// Past gap acceptance: the vehicle will enter the ring (others treat it as merging).
+    pub committed: bool,
+    pub position: Point,
+    pub heading: f64,
+    /// Index of the route piece under the centre.
+    pub piece: usize,
+    /// When the vehicle's centre first passed its merge point, s of world time.
+    pub entered_ring_at: Option<f64>,
+    /// The ego's bicycle state; None for the others.
+    bicycle: Option<Bicycle>,
+}
+
+impl Vehicle {
+    pub fn is_ego(&self) -> bool {
+        self.bicycle.is_some()
+    }
+
+    pub fn footprint(&self) -> OrientedBox {
+        OrientedBox::new(self.position, self.heading, self.length, self.width)
+    }
+
+    fn front_s(&self) -> f64 {
+        self.s + self.length / 2.0
+    }
+}
+
+/// Counters over a world's life.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct WorldStats {
+    pub spawned: u64,
+    pub despawned: u64,
+    /// Spawns skipped because the chosen approach was occupied near its start.
+    pub spawns_blocked: u64,
+}
+
+/// The nearest vehicle ahead of another: its index, the bumper-to-bumper gap and how fast
+/// the follower closes in on it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Leader {
+    pub index: usize,
+    pub gap_m: f64,
+    pub closing_mps: f64,
+}
+
+/// Where a vehicle's route goes next: each piece ahead within the horizon with the
+/// distance from the vehicle's centre to the piece's start (negative for the current one).
+type Lookahead = Vec<(PieceKey, f64)>;
+
+/// The traffic around one roundabout.
+#[derive(Debug, Clone)]
+pub struct World {
+    layout: Arc<RoundaboutLayout>,
+    config: TrafficConfig,
+    ego_config: EgoConfig,
+    rng: ChaCha8Rng,
+    vehicles: Vec<Vehicle>,
+    next_id: u32,
+    time_s: f64,
+    stats: WorldStats,
+    grid: UniformGrid,
+    /// Scratch: what each vehicle sees ahead, refreshed each step.
+    lookahead: Vec<Lookahead>,
+    found: Vec<u32>,
+}
+
+impl World {
+    /// An empty world on `layout`, all draws from `seed`.
+    pub fn new(
+        layout: Arc<RoundaboutLayout>,
+        config: TrafficConfig,
+        ego_config: EgoConfig,
+        seed: u64,
+    ) -> Self {
+        let mut region = layout.bounds;
+        if !region.is_empty() {
+            region.extend(Point::new(region.min.x - 10.0, region.min.y - 10.0));
+            region.extend(Point::new(region.max.x + 10.0, region.max.y + 10.0));
+        }
+        World {
+            grid: UniformGrid::new(region, 8.0),
+            layout,
+            config,
+            ego_config,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            vehicles: Vec::new(),
+            next_id: 0,
+            time_s: 0.0,
+            stats: WorldStats::default(),
+            lookahead: Vec::new(),
+            found: Vec::new(),
+        }
+    }
+
+    pub fn layout(&self) -> &Arc<RoundaboutLayout> {
+        &self.layout
+    }
+
+    pub fn config(&self) -> &TrafficConfig {
+        &self.config
+    }
+
+    pub fn time_s(&self) -> f64 {
+        self.time_s
+    }
+
+    pub fn stats(&self) -> WorldStats {
+        self.stats
+    }
+
+    pub fn vehicles(&self) -> &[Vehicle] {
+        &self.vehicles
+    }
+
+    pub fn route(&self, vehicle: &Vehicle) -> &RingRoute {
+        &self.layout.routes[vehicle.route]
+    }
+
+    /// Index of the ego in [`World::vehicles`].
+    pub fn ego_index(&self) -> Option<usize> {
+        self.vehicles.iter().position(Vehicle::is_ego)
+    }
+
+    /// Vehicles other than the ego.
+    pub fn others_count(&self) -> usize {
+        self.vehicles.iter().filter(|v| !v.is_ego()).count()
+    }
+
+    /// Simulates `seconds` of traffic (used before the ego appears).
+    pub fn warm_up(&mut self, seconds: f64) {
+        let steps = (seconds / self.config.step_s).round().max(0.0) as usize;
+        for _ in 0..steps {
+            self.step(0.0);
+        }
+    }
+
+    /// Puts the ego on route `route` with its centre at `s`, driving at `speed`. Other
+    /// vehicles on the same approach within `clear_m` of it, or touching it, are removed.
+    /// Replaces any previous ego.
+    pub fn insert_ego(&mut self, route: usize, s: f64, speed: f64, clear_m: f64) {
+        self.vehicles.retain(|v| !v.is_ego());
+        let r = &self.layout.routes[route];
+        let (position, heading) = r.path.pose_at(s);
+        let cfg = self.ego_config;
+        let ego_box = OrientedBox::new(position, heading, cfg.length_m + 4.0, cfg.width_m + 2.0);
+        let layout = Arc::clone(&self.layout);
+        self.vehicles.retain(|v| {
+            let same_approach =
+                layout.routes[v.route].entry == r.entry && v.s < layout.routes[v.route].merge_s;
+            let near = same_approach && (v.s - s).abs() < clear_m + (v.length + cfg.length_m) / 2.0;
+            !(near || v.footprint().overlaps(&ego_box))
+        });
+        let id = self.next_id;
+        self.next_id += 1;
+        let rear =
+            position.sub(Point::new(heading.cos(), heading.sin()).scale(cfg.wheelbase_m / 2.0));
+        self.vehicles.push(Vehicle {
+            id,
+            route,
+            s,
+            speed,
+            accel: 0.0,
+            length: cfg.length_m,
+            width: cfg.width_m,
+            driver: Driver::new(&self.config.drivers, 0.5),
+            committed: false,
+            position,
+            heading,
+            piece: r.path.piece_at(s, 0),
+            entered_ring_at: None,
+            bicycle: Some(Bicycle { rear, heading }),
+        });
+        self.refresh_lookahead();
+    }
+
+    /// Advances one step: the ego (if any) with acceleration `ego_accel` (clamped to its
+    /// limits), everyone else by their driver model; then vehicles past their exit leave
+    /// and new ones may arrive.
+    pub fn step(&mut self, ego_accel: f64) {
+        let dt = self.config.step_s;
+        self.decide_gaps();
+        let accels: Vec<f64> = (0..self.vehicles.len())
+            .map(|i| {
+                if self.vehicles[i].is_ego() {
+                    0.0
+                } else {
+                    self.driver_accel(i)
+                }
+            })
+            .collect();
+        let brake = self.config.drivers.max_brake_mps2;
+        for (i, a) in accels.into_iter().enumerate() {
+            if self.vehicles[i].is_ego() {
+                self.move_ego(i, ego_accel, dt);
+            } else {
+                let v = &mut self.vehicles[i];
+                let a = a.clamp(-brake, v.driver.max_accel_mps2);
+                let new_speed = (v.speed + a * dt).max(0.0);
+                // Exact distance under constant acceleration, stopping at zero speed.
+                let ds = if new_speed > 0.0 {
+                    (v.speed + new_speed) / 2.0 * dt
+                } else if a < 0.0 {
+                    v.speed * v.speed / (-2.0 * a)
+                } else {
+                    0.0
+                };
+                v.s += ds;
+                v.speed = new_speed;
+                v.accel = a;
+                let route = &self.layout.routes[v.route];
+                let (p, h) = route.path.pose_at(v.s);
+                v.position = p;
+                v.heading = h;
+                v.piece = route.path.piece_at(v.s, v.piece);
+            }
+        }
+        self.time_s += dt;
+        for v in &mut self.vehicles {
+            if v.entered_ring_at.is_none() && v.s >= self.layout.routes[v.route].merge_s {
+                v.entered_ring_at = Some(self.time_s);
+            }
+        }
+        self.despawn();
+        self.spawn();
+        self.refresh_lookahead();
+    }
+
+    /// Moves the ego one step: pure pursuit steering on its route, the given acceleration.
+    fn move_ego(&mut self, i: usize, accel: f64, dt: f64) {
+        let cfg = self.ego_config;
+        let layout = Arc::clone(&self.layout);
+        let v = &mut self.vehicles[i];
+        let Some(mut bike) = v.bicycle else { return };
+        let path = &layout.routes[v.route].path;
+        let a = accel.clamp(-cfg.max_brake_mps2, cfg.max_accel_mps2);
+        let new_speed = (v.speed + a * dt).max(0.0);
+        let travelled = if new_speed > 0.0 {
+            (v.speed + new_speed) / 2.0 * dt
+        } else if a < 0.0 {
+            v.speed * v.speed / (-2.0 * a)
+        } else {
+            0.0
+        };
+        let lookahead = (cfg.lookahead_min_m + cfg.lookahead_s * v.speed).min(8.0);
+        let (target, _) = path.pose_at(v.s + lookahead);
+        let to_target = target.sub(bike.rear);
+        let alpha = wrap_angle(to_target.y.atan2(to_target.x) - bike.heading);
+        let distance = to_target.norm().max(0.1);
+        let steer = (2.0 * cfg.wheelbase_m * alpha.sin() / distance)
+            .atan()
+            .clamp(-cfg.max_steer_rad, cfg.max_steer_rad);
+        bike.rear = bike
+            .rear
+            .add(Point::new(bike.heading.cos(), bike.heading.sin()).scale(travelled));
+        bike.heading = wrap_angle(bike.heading + travelled / cfg.wheelbase_m * steer.tan());
+        let axis = Point::new(bike.heading.cos(), bike.heading.sin());
+        v.position = bike.rear.add(axis.scale(cfg.wheelbase_m / 2.0));
+        v.heading = bike.heading;
+        v.bicycle = Some(bike);
+        v.speed = new_speed;
+        v.accel = a;
+        let (s, _) = path.project(v.position, v.s, 1.0, travelled + 2.0);
+        v.s = s.max(v.s);
+        v.piece = path.piece_at(v.s, v.piece);
+        let route = &layout.routes[v.route];
+        // The ego is committed once its front is clearly past the yield line.
+        v.committed = v.front_s() > route.yield_s + 0.5;
+    }
+
+    /// For each vehicle, the pieces of its route within the horizon. Kept fresh between
+    /// steps (refreshed at the end of every change of the vehicles).
+    fn refresh_lookahead(&mut self) {
+        let horizon = self.config.horizon_m;
+        self.lookahead.resize_with(self.vehicles.len(), Vec::new);
+        for (v, out) in self.vehicles.iter().zip(&mut self.lookahead) {
+            out.clear();
+            let pieces = self.layout.routes[v.route].path.pieces();
+            for p in &pieces[v.piece.min(pieces.len() - 1)..] {
+                let d = p.s_start - v.s;
+                if d > horizon {
+                    break;
+                }
+                out.push((p.key, d));
+            }
+        }
+    }
+
+    /// Where vehicle `j`'s route starts piece `key` relative to `j`'s centre, if ahead
+    /// within the horizon (or the current piece: negative).
+    fn distance_to_piece(&self, j: usize, key: PieceKey) -> Option<f64> {
+        self.lookahead[j]
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map(|(_, d)| *d)
+    }
+
+    /// The nearest vehicle ahead of vehicle `i` on its path. With `merging`, a committed
+    /// vehicle on another piece that is nearer to the start of a lane both are about to
+    /// enter counts too (it will be ahead once both are on that lane).
+    pub fn leader(&self, i: usize, merging: bool) -> Option<Leader> {
+        let me = &self.vehicles[i];
+        let mut best: Option<Leader> = None;
+        let mut consider = |j: usize, centre_distance: f64| {
+            let other = &self.vehicles[j];
+            let gap = centre_distance - (me.length + other.length) / 2.0;
+            if best.is_none_or(|b| gap < b.gap_m) {
+                best = Some(Leader {
+                    index: j,
+                    gap_m: gap,
+                    closing_mps: me.speed - other.speed,
+                });
+            }
+        };
+        for (k, &(key, start)) in self.lookahead[i].iter().enumerate() {
+            for (j, other) in self.vehicles.iter().enumerate() {
+                if j == i {
+                    continue;
+                }
+                let theirs = &self.lookahead[j];
+                let Some(&(their_key, their_start)) = theirs.first() else {
+                    continue;
+                };
+                if their_key == key {
+                    // On the same piece: ahead when farther along it.
+                    let d = start - their_start;
+                    if k > 0 || d > 0.0 {
+                        consider(j, d);
+                    }
+                } else if merging
+                    && k > 0
+                    && other.committed
+                    && matches!(key, PieceKey::Lane(_))
+                    && let Some(their_d) = self
+                        .distance_to_piece(j, key)
+                        .filter(|&d| d > 0.0 && d < start)
+                {
+                    consider(j, start - their_d);
+                }
+            }
+        }
+        best
+    }
+
+    /// Gap acceptance: uncommitted drivers near their yield line commit when every
+    /// circulating vehicle heading for their merge point is far enough away in time.
+    fn decide_gaps(&mut self) {
+        let mut commit = Vec::new();
+        for (i, v) in self.vehicles.iter().enumerate() {
+            if v.committed || v.is_ego() {
+                continue;
+            }
+            let route = &self.layout.routes[v.route];
+            let to_line = route.yield_s - v.front_s();
+            if to_line > self.config.decision_distance_m {
+                continue;
+            }
+            if to_line < -0.5 {
+                // Over the line already (it could not stop): it is in the way either way.
+                commit.push(i);
+                continue;
+            }
+            let to_merge = (route.merge_s - v.front_s()).max(0.0);
+            let my_time = to_merge / v.speed.max(3.0);
+            let merge_key = PieceKey::Lane(route.merge_lane);
+            let clear = self.vehicles.iter().enumerate().all(|(j, o)| {
+                if j == i || !o.committed {
+                    return true;
+                }
+                let Some(d) = self.distance_to_piece(j, merge_key) else {
+                    return true;
+                };
+                // Front of the other vehicle to the merge point; negative while it straddles it.
+                let front_to_merge = d - o.length / 2.0;
+                if d <= 0.0 && d > -o.length {
+                    return false; // on the merge lane right at the merge point
+                }
+                if d <= 0.0 {
+                    return true;
+                }
+                front_to_merge > 2.0
+                    && front_to_merge / o.speed.max(0.1) > my_time + v.driver.critical_gap_s
+            });
+            if clear {
+                commit.push(i);
+            }
+        }
+        for i in commit {
+            self.vehicles[i].committed = true;
+        }
+    }
+
+    /// Acceleration of a non-ego vehicle: IDM behind its leader, and behind its yield
+    /// line while uncommitted.
+    fn driver_accel(&self, i: usize) -> f64 {
+        let v = &self.vehicles[i];
+        let route = &self.layout.routes[v.route];
+        let v0 = route.path.speed_at(v.s + v.length / 2.0) * v.driver.speed_factor;
+        let mut a = v.driver.idm(
+            v.speed,
+            v0,
+            self.leader(i, true).map(|l| (l.gap_m, l.closing_mps)),
+        );
+        if !v.committed {
+            let to_line = route.yield_s - v.front_s();
+            if to_line > -0.5 {
+                // The line as a standing obstacle; the front stops just short of it.
+                let gap = to_line + v.driver.min_gap_m - 0.3;
+                a = a.min(v.driver.idm(v.speed, v0, Some((gap, v.speed))));
+            }
+        }
+        a
+    }
+
+    /// Removes vehicles whose front has reached the end of their route.
+    fn despawn(&mut self) {
+        let before = self.vehicles.len();
+        let layout = &self.layout;
+        self.vehicles
+            .retain(|v| v.is_ego() || v.front_s() < layout.routes[v.route].path.length());
+        self.stats.despawned += (before - self.vehicles.len()) as u64;
+    }
+
+    /// Below the cap, a new vehicle arrives with probability `arrivals_per_s * step` on a
+    /// random approach (uniform over entries, then routes), if its start is free.
+    fn spawn(&mut self) {
+        if self.others_count() >= self.config.cap() {
+            return;
+        }
+        let p = (self.config.arrivals_per_s * self.config.step_s).clamp(0.0, 1.0);
+        // Every draw is made whether or not it is used, so one choice never shifts the next.
+        let arrive = self.rng.random::<f64>() < p;
+        let entry_draw: f64 = self.rng.random();
+        let route_draw: f64 = self.rng.random();
+        let aggressiveness: f64 = self.rng.random();
+        let length_draw: f64 = self.rng.random();
+        let width_draw: f64 = self.rng.random();
+        if !arrive {
+            return;
+        }
+        let entries: Vec<usize> = self.layout.usable_entries().collect();
+        let entry = entries[((entry_draw * entries.len() as f64) as usize).min(entries.len() - 1)];
+        let routes = &self.layout.routes_by_entry[entry];
+        let route_index =
+            routes[((route_draw * routes.len() as f64) as usize).min(routes.len() - 1)];
+        let length = self.config.vehicle_length_m.at(length_draw);
+        let width = self.config.vehicle_width_m.at(width_draw);
+        let s = length / 2.0;
+        let driver = Driver::new(&self.config.drivers, aggressiveness);
+        // Nearest vehicle ahead on the same approach (same geometry up to the merge point).
+        let layout = &self.layout;
+        let ahead = self
+            .vehicles
+            .iter()
+            .filter(|o| {
+                layout.routes[o.route].entry == entry && o.s < layout.routes[o.route].merge_s
+            })
+            .map(|o| (o.s - o.length / 2.0 - length, o.speed))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        if ahead.is_some_and(|(gap, _)| gap < self.config.spawn_clearance_m) {
+            self.stats.spawns_blocked += 1;
+            return;
+        }
+        let route = &self.layout.routes[route_index];
+        let v0 = route.path.speed_at(s) * driver.speed_factor;
+        // Arrive no faster than lets the driver stop behind whoever is ahead.
+        let speed = match ahead {
+            Some((gap, lead_speed)) => {
+                v0.min(lead_speed + (2.0 * driver.comfort_decel_mps2 * gap).sqrt())
+            }
+            None => v0,
+        };
+        let (position, heading) = route.path.pose_at(s);
+        let id = self.next_id;
+        self.next_id += 1;
+        self.vehicles.push(Vehicle {
+            id,
+            route: route_index,
+            s,
+            speed,
+            accel: 0.0,
+            length,
+            width,
+            driver,
+            committed: false,
+            position,
+            heading,
+            piece: 0,
+            entered_ring_at: None,
+            bicycle: None,
+        });
+        self.stats.spawned += 1;
+    }
+
+    /// Index of a vehicle whose footprint overlaps vehicle `i`'s, if any (lowest index).
+    pub fn collision_with(&mut self, i: usize) -> Option<usize> {
+        self.grid.clear();
+        for (j, v) in self.vehicles.iter().enumerate() {
+            if j != i {
+                let r = v.footprint().bounding_radius();
+                let p = v.position;
+                self.grid.insert(
+                    j as u32,
+                    Point::new(p.x - r, p.y - r),
+                    Point::new(p.x + r, p.y + r),
+                );
+            }
+        }
+        let me = self.vehicles[i].footprint();
+        let (p, r) = (me.centre, me.bounding_radius());
+        let mut found = std::mem::take(&mut self.found);
+        self.grid.query(
+            Point::new(p.x - r, p.y - r),
+            Point::new(p.x + r, p.y + r),
+            &mut found,
+        );
+        let hit = found
+            .iter()
+            .map(|&j| j as usize)
+            .find(|&j| self.vehicles[j].footprint().overlaps(&me));
+        self.found = found;
+        hit
+    }
+
+    /// Pairs of other vehicles (not the ego) whose footprints overlap: a diagnostic of the
+    /// traffic model, which should keep it near zero.
+    pub fn overlapping_others(&self) -> Vec<(u32, u32)> {
+        let mut out = Vec::new();
+        for (i, a) in self.vehicles.iter().enumerate() {
+            for b in &self.vehicles[i + 1..] {
+                if !a.is_ego() && !b.is_ego() && a.footprint().overlaps(&b.footprint()) {
+                    out.push((a.id, b.id));
+                }
+            }
+        }
+        out
+    }
+
+    /// The road users as scene actors, in vehicle order.
+    pub fn actors(&self) -> Vec<Actor> {
+        self.vehicles
+            .iter()
+            .map(|v| {
+                let route = &self.layout.routes[v.route];
+                Actor {
+                    id: v.id,
+                    kind: ActorKind::Car,
+                    position: v.position,
+                    heading_rad: v.heading,
+                    speed_mps: v.speed,
+                    length_m: v.length,
+                    width_m: v.width,
+                    lane: match route.path.pieces().get(v.piece).map(|p| p.key) {
+                        Some(PieceKey::Lane(l)) => Some(l),
+                        _ => None,
+                    },
+                    aggressiveness: (!v.is_ego()).then_some(v.driver.aggressiveness),
+                }
+            })
+            .collect()
+    }
+}
