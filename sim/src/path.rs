@@ -174,6 +174,15 @@ impl Path {
         self.speeds[i] + (self.speeds[i + 1] - self.speeds[i]) * t
     }
 
+    /// Time to drive from `from` to `to` at the nominal speed profile, s.
+    pub fn travel_time(&self, from: f64, to: f64) -> f64 {
+        let n = ((to - from) / self.spacing).ceil().max(0.0) as usize;
+        let ds = (to - from) / n.max(1) as f64;
+        (0..n)
+            .map(|k| ds / self.speed_at(from + (k as f64 + 0.5) * ds).max(0.5))
+            .sum()
+    }
+
     /// The samples between arc lengths `from` and `to`.
     pub fn samples_between(&self, from: f64, to: f64) -> &[Point] {
         let last = self.points.len() - 1;
@@ -297,13 +306,20 @@ mod tests {
         assert!((path.speed_at(50.0 + quarter / 2.0) - 5.0).abs() < 0.3);
         // Braking at 1.5 m/s² from 15 to 5 m/s takes 66.7 m, more than the 50 m straight:
         // even its start is slower than the limit, √(5² + 2 · 1.5 · 50) = 13.2 m/s.
-        assert!((path.speed_at(0.0) - 13.2).abs() < 0.3, "{}", path.speed_at(0.0));
+        assert!(
+            (path.speed_at(0.0) - 13.2).abs() < 0.3,
+            "{}",
+            path.speed_at(0.0)
+        );
         // Well into the curve the speed is the curve's; 6.5 m before, no more than braking
         // at 1.5 m/s² allows (up to the linear interpolation between samples).
         let in_curve = path.speed_at(51.5);
         assert!((in_curve - 5.0).abs() < 0.3, "{in_curve}");
         let before = path.speed_at(45.0);
-        assert!(before <= (in_curve.powi(2) + 2.0 * 1.5 * 6.5).sqrt() + 0.02, "{before}");
+        assert!(
+            before <= (in_curve.powi(2) + 2.0 * 1.5 * 6.5).sqrt() + 0.02,
+            "{before}"
+        );
         assert_eq!(path.piece_at(49.0, 0), 0);
         assert_eq!(path.piece_at(51.0, 0), 1);
         assert_eq!(path.piece_at(10.0, 1), 0);

@@ -33,8 +33,8 @@ pub struct LayoutConfig {
 impl Default for LayoutConfig {
     fn default() -> Self {
         LayoutConfig {
-            approach_m: 45.0,
-            exit_m: 25.0,
+            approach_m: 22.0,
+            exit_m: 10.0,
             lateral_accel_mps2: 2.5,
             waiting_clearance_m: 0.3,
         }

@@ -9,7 +9,8 @@
 //! - Each driver has an aggressiveness in [0, 1]: higher means a higher desired speed,
 //!   shorter headways, harder acceleration and shorter accepted gaps.
 //! - Vehicles enter at the upstream end of an approach and leave at the downstream end of
-//!   an exit; at most [`TrafficConfig::max_vehicles`] others are in the roundabout at once.
+//!   an exit; at most [`TrafficConfig::cap`] others are in the roundabout (its
+//!   approaches, ring and exits) at once.
 //! - The ego (optional) is a kinematic bicycle: the caller chooses its acceleration, a pure
 //!   pursuit controller steers it along its route.
 //!
@@ -110,6 +111,9 @@ pub struct DriverConfig {
     /// Gap acceptance: time a circulating vehicle must be away from the merge point (beyond
     /// the time to get there), s.
     pub critical_gap_s: Span,
+    /// Hardest braking for a vehicle merging in ahead (drivers expect it to wait; they do
+    /// not brake to a standstill for a car that cuts in), m/s².
+    pub merge_brake_mps2: Span,
     /// Hardest braking any vehicle can do, m/s².
     pub max_brake_mps2: f64,
 }
@@ -122,7 +126,8 @@ impl Default for DriverConfig {
             min_gap_m: Span::new(2.5, 1.5),
             max_accel_mps2: Span::new(1.2, 2.5),
             comfort_decel_mps2: Span::new(1.5, 3.0),
-            critical_gap_s: Span::new(4.0, 1.6),
+            critical_gap_s: Span::new(3.5, 1.2),
+            merge_brake_mps2: Span::new(4.0, 2.0),
             max_brake_mps2: 8.0,
         }
     }
@@ -137,7 +142,8 @@ pub struct TrafficConfig {
     pub max_vehicles: Option<usize>,
     /// Simulation step, s.
     pub step_s: f64,
-    /// While below the cap, new vehicles arrive at this mean rate, 1/s.
+    /// While below the cap, new vehicles arrive at this mean rate (when their approach
+    /// has room), 1/s.
     pub arrivals_per_s: f64,
     /// Traffic is simulated this long before the ego appears, s.
     pub warm_up_s: f64,
@@ -187,6 +193,7 @@ pub struct Driver {
     pub max_accel_mps2: f64,
     pub comfort_decel_mps2: f64,
     pub critical_gap_s: f64,
+    pub merge_brake_mps2: f64,
 }
 
 impl Driver {
@@ -200,6 +207,7 @@ impl Driver {
             max_accel_mps2: config.max_accel_mps2.at(a),
             comfort_decel_mps2: config.comfort_decel_mps2.at(a),
             critical_gap_s: config.critical_gap_s.at(a),
+            merge_brake_mps2: config.merge_brake_mps2.at(a),
         }
     }
 
@@ -315,6 +323,8 @@ pub struct Leader {
     pub index: usize,
     pub gap_m: f64,
     pub closing_mps: f64,
+    /// Found as a vehicle merging in from another piece (not yet on the follower's path).
+    pub merging: bool,
 }
 
 /// Where a vehicle's route goes next: each piece ahead within the horizon with the
@@ -398,6 +408,17 @@ impl World {
     /// Vehicles other than the ego.
     pub fn others_count(&self) -> usize {
         self.vehicles.iter().filter(|v| !v.is_ego()).count()
+    }
+
+    /// Other vehicles on the ring (between their merge point and their exit).
+    pub fn circulating(&self) -> usize {
+        self.vehicles
+            .iter()
+            .filter(|v| {
+                let r = &self.layout.routes[v.route];
+                !v.is_ego() && v.s >= r.merge_s && v.s < r.exit_s
+            })
+            .count()
     }
 
     /// Simulates `seconds` of traffic (used before the ego appears).
@@ -574,7 +595,7 @@ impl World {
     pub fn leader(&self, i: usize, merging: bool) -> Option<Leader> {
         let me = &self.vehicles[i];
         let mut best: Option<Leader> = None;
-        let mut consider = |j: usize, centre_distance: f64| {
+        let mut consider = |j: usize, centre_distance: f64, merging: bool| {
             let other = &self.vehicles[j];
             let gap = centre_distance - (me.length + other.length) / 2.0;
             if best.is_none_or(|b| gap < b.gap_m) {
@@ -582,6 +603,7 @@ impl World {
                     index: j,
                     gap_m: gap,
                     closing_mps: me.speed - other.speed,
+                    merging,
                 });
             }
         };
@@ -598,7 +620,7 @@ impl World {
                     // On the same piece: ahead when farther along it.
                     let d = start - their_start;
                     if k > 0 || d > 0.0 {
-                        consider(j, d);
+                        consider(j, d, false);
                     }
                 } else if merging
                     && k > 0
@@ -608,7 +630,7 @@ impl World {
                         .distance_to_piece(j, key)
                         .filter(|&d| d > 0.0 && d < start)
                 {
-                    consider(j, start - their_d);
+                    consider(j, start - their_d, true);
                 }
             }
         }
@@ -669,11 +691,13 @@ impl World {
         let v = &self.vehicles[i];
         let route = &self.layout.routes[v.route];
         let v0 = route.path.speed_at(v.s + v.length / 2.0) * v.driver.speed_factor;
-        let mut a = v.driver.idm(
-            v.speed,
-            v0,
-            self.leader(i, true).map(|l| (l.gap_m, l.closing_mps)),
-        );
+        let leader = self.leader(i, true);
+        let mut a = v
+            .driver
+            .idm(v.speed, v0, leader.map(|l| (l.gap_m, l.closing_mps)));
+        if leader.is_some_and(|l| l.merging) {
+            a = a.max(-v.driver.merge_brake_mps2);
+        }
         if !v.committed {
             let to_line = route.yield_s - v.front_s();
             if to_line > -0.5 {

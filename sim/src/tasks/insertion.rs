@@ -99,7 +99,10 @@ pub struct InsertionConfig {
     pub reward: RewardConfig,
     /// The ego's aggressiveness; None draws it uniformly in [0, 1] every episode (training).
     pub aggressiveness: Option<f64>,
+    /// An episode ends in a time-over after this long, or after `time_limit_factor` times
+    /// the free-flow time from start to goal if that is longer (large roundabouts), s.
     pub time_limit_s: f64,
+    pub time_limit_factor: f64,
     /// The ego's centre starts this far before its yield line, m.
     pub start_distance_m: f64,
     /// The ego starts at a speed drawn uniformly in this fraction of its target speed.
@@ -124,8 +127,9 @@ impl Default for InsertionConfig {
             observation: BevConfig::default(),
             reward: RewardConfig::default(),
             aggressiveness: None,
-            time_limit_s: 30.0,
-            start_distance_m: 25.0,
+            time_limit_s: 20.0,
+            time_limit_factor: 2.0,
+            start_distance_m: 20.0,
             start_speed_fraction: (0.3, 0.8),
             goal_past_exit_m: 5.0,
             comfort_accel_mps2: 2.0,
@@ -267,6 +271,7 @@ pub struct RoundaboutInsertion {
     steps: usize,
     start_time_s: f64,
     goal_s: f64,
+    time_limit_s: f64,
     episode_return: f64,
     speed_sum: f64,
     entered_at_s: Option<f64>,
@@ -296,6 +301,7 @@ impl RoundaboutInsertion {
             steps: 0,
             start_time_s: 0.0,
             goal_s: 0.0,
+            time_limit_s: 0.0,
             episode_return: 0.0,
             speed_sum: 0.0,
             entered_at_s: None,
@@ -579,6 +585,10 @@ impl Env for RoundaboutInsertion {
         let speed = target * (lo + (hi - lo) * speed_draw);
         world.insert_ego(self.route, s0, speed, 8.0);
         self.goal_s = (route.exit_s + self.config.goal_past_exit_m).min(route.path.length() - 0.1);
+        self.time_limit_s = self
+            .config
+            .time_limit_s
+            .max(self.config.time_limit_factor * route.path.travel_time(s0, self.goal_s));
         self.start_time_s = world.time_s();
         self.world = Some(world);
         self.last_action = Action::Permitted;
@@ -664,7 +674,7 @@ impl RoundaboutInsertion {
             Some(Outcome::OffRoad)
         } else if s >= self.goal_s {
             Some(Outcome::Reached)
-        } else if elapsed >= self.config.time_limit_s - 1e-9 {
+        } else if elapsed >= self.time_limit_s - 1e-9 {
             Some(Outcome::TimeOver)
         } else {
             None
