@@ -64,12 +64,14 @@ pub fn wrap_angle(a: f64) -> f64 {
 
 impl Path {
     /// Builds a path over `keys` (each lane followed by the connection that leaves it, and so
-    /// on), starting `trim_start_m` into the first piece. Returns None when a key is missing
+    /// on), starting `trim_start_m` into the first piece and ending after `max_length_m` at
+    /// most (later pieces dropped, the last one cut). Returns None when a key is missing
     /// from the map or the path has no length.
     pub fn new(
         map: &Map,
         keys: &[PieceKey],
         trim_start_m: f64,
+        max_length_m: f64,
         profile: SpeedProfile,
     ) -> Option<Path> {
         let mut geometry: Vec<(PieceKey, Vec<Point>, f64)> = Vec::with_capacity(keys.len());
@@ -91,6 +93,17 @@ impl Path {
                 pts
             };
             geometry.push((*key, pts, maps::graph::lane_speed_mps(limit_kmh)));
+        }
+        let mut total = 0.0;
+        for k in 0..geometry.len() {
+            let len = polyline_length(&geometry[k].1);
+            if total + len >= max_length_m {
+                geometry[k].1 =
+                    maps::geometry::slice_polyline(&geometry[k].1, 0.0, max_length_m - total);
+                geometry.truncate(k + 1);
+                break;
+            }
+            total += len;
         }
         Self::from_geometry(&geometry, profile)
     }

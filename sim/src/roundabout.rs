@@ -36,7 +36,7 @@ impl Default for LayoutConfig {
             approach_m: 22.0,
             exit_m: 10.0,
             lateral_accel_mps2: 2.5,
-            waiting_clearance_m: 0.3,
+            waiting_clearance_m: 0.5,
         }
     }
 }
@@ -318,7 +318,18 @@ fn build_route(
         seen.insert(c.to);
         lane = c.to;
     }
-    let path = Path::new(map, &keys, trim, profile)?;
+    // Approach (after the trim), entry lane to the start of the exit lane, exit stretch.
+    let piece_length = |k: &PieceKey| match k {
+        PieceKey::Lane(l) => map.lanes.get(l).map_or(0.0, |l| polyline_length(&l.centre)),
+        PieceKey::Connection(c) => map
+            .connections
+            .get(c)
+            .map_or(0.0, |c| polyline_length(&c.centre)),
+    };
+    let before_entry = behind - yield_on_entry.unwrap_or(entry_len);
+    let core_to_exit: f64 = core[..core.len() - 1].iter().map(piece_length).sum();
+    let max_length = before_entry - trim + core_to_exit + config.exit_m;
+    let path = Path::new(map, &keys, trim, max_length, profile)?;
     let lane_start = |id: LaneId| {
         path.pieces()
             .iter()

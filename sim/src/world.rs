@@ -108,8 +108,8 @@ pub struct DriverConfig {
     pub max_accel_mps2: Span,
     /// IDM comfortable deceleration, m/s².
     pub comfort_decel_mps2: Span,
-    /// Gap acceptance: time a circulating vehicle must be away from the merge point (beyond
-    /// the time to get there), s.
+    /// Gap acceptance: time a circulating vehicle must be away from the merge point beyond
+    /// the time the driver needs to get its whole car past it, s.
     pub critical_gap_s: Span,
     /// Hardest braking for a vehicle merging in ahead (drivers expect it to wait; they do
     /// not brake to a standstill for a car that cuts in), m/s².
@@ -126,8 +126,8 @@ impl Default for DriverConfig {
             min_gap_m: Span::new(2.5, 1.5),
             max_accel_mps2: Span::new(1.2, 2.5),
             comfort_decel_mps2: Span::new(1.5, 3.0),
-            critical_gap_s: Span::new(3.5, 1.2),
-            merge_brake_mps2: Span::new(4.0, 2.0),
+            critical_gap_s: Span::new(2.0, 0.5),
+            merge_brake_mps2: Span::new(8.0, 8.0),
             max_brake_mps2: 8.0,
         }
     }
@@ -252,8 +252,8 @@ impl Default for EgoConfig {
             width_m: 1.85,
             wheelbase_m: 2.7,
             max_steer_rad: 0.6,
-            lookahead_min_m: 2.5,
-            lookahead_s: 0.5,
+            lookahead_min_m: 1.5,
+            lookahead_s: 0.3,
             max_accel_mps2: 3.0,
             max_brake_mps2: 8.0,
         }
@@ -429,6 +429,41 @@ impl World {
         }
     }
 
+    /// Adds another vehicle on route `route` with its centre at `s` (for tests and for
+    /// scenarios replayed from logs); `committed` marks it as past gap acceptance. Returns
+    /// its id.
+    pub fn insert_vehicle(
+        &mut self,
+        route: usize,
+        s: f64,
+        speed: f64,
+        aggressiveness: f64,
+        committed: bool,
+    ) -> u32 {
+        let r = &self.layout.routes[route];
+        let (position, heading) = r.path.pose_at(s);
+        let id = self.next_id;
+        self.next_id += 1;
+        self.vehicles.push(Vehicle {
+            id,
+            route,
+            s,
+            speed,
+            accel: 0.0,
+            length: self.config.vehicle_length_m.at(0.5),
+            width: self.config.vehicle_width_m.at(0.5),
+            driver: Driver::new(&self.config.drivers, aggressiveness),
+            committed,
+            position,
+            heading,
+            piece: r.path.piece_at(s, 0),
+            entered_ring_at: None,
+            bicycle: None,
+        });
+        self.refresh_lookahead();
+        id
+    }
+
     /// Puts the ego on route `route` with its centre at `s`, driving at `speed`. Other
     /// vehicles on the same approach within `clear_m` of it, or touching it, are removed.
     /// Replaces any previous ego.
@@ -589,13 +624,22 @@ impl World {
             .map(|(_, d)| *d)
     }
 
-    /// The nearest vehicle ahead of vehicle `i` on its path. With `merging`, a committed
-    /// vehicle on another piece that is nearer to the start of a lane both are about to
-    /// enter counts too (it will be ahead once both are on that lane).
-    pub fn leader(&self, i: usize, merging: bool) -> Option<Leader> {
+    /// The nearest vehicle ahead of vehicle `i` on its path (on a piece of its route).
+    pub fn leader(&self, i: usize) -> Option<Leader> {
+        self.nearest_ahead(i, false)
+    }
+
+    /// The nearest committed vehicle about to merge, from another piece, into a lane that
+    /// vehicle `i` is about to enter, and nearer to that lane's start: it will be ahead once
+    /// both are on the lane.
+    pub fn merging_leader(&self, i: usize) -> Option<Leader> {
+        self.nearest_ahead(i, true)
+    }
+
+    fn nearest_ahead(&self, i: usize, merging: bool) -> Option<Leader> {
         let me = &self.vehicles[i];
         let mut best: Option<Leader> = None;
-        let mut consider = |j: usize, centre_distance: f64, merging: bool| {
+        let mut consider = |j: usize, centre_distance: f64| {
             let other = &self.vehicles[j];
             let gap = centre_distance - (me.length + other.length) / 2.0;
             if best.is_none_or(|b| gap < b.gap_m) {
@@ -612,17 +656,17 @@ impl World {
                 if j == i {
                     continue;
                 }
-                let theirs = &self.lookahead[j];
-                let Some(&(their_key, their_start)) = theirs.first() else {
+                let Some(&(their_key, their_start)) = self.lookahead[j].first() else {
                     continue;
                 };
-                if their_key == key {
+                if !merging && their_key == key {
                     // On the same piece: ahead when farther along it.
                     let d = start - their_start;
                     if k > 0 || d > 0.0 {
-                        consider(j, d, false);
+                        consider(j, d);
                     }
                 } else if merging
+                    && their_key != key
                     && k > 0
                     && other.committed
                     && matches!(key, PieceKey::Lane(_))
@@ -630,7 +674,7 @@ impl World {
                         .distance_to_piece(j, key)
                         .filter(|&d| d > 0.0 && d < start)
                 {
-                    consider(j, start - their_d, true);
+                    consider(j, start - their_d);
                 }
             }
         }
@@ -655,14 +699,22 @@ impl World {
                 commit.push(i);
                 continue;
             }
-            let to_merge = (route.merge_s - v.front_s()).max(0.0);
-            let my_time = to_merge / v.speed.max(3.0);
-            let merge_key = PieceKey::Lane(route.merge_lane);
+            // Time to get the whole car past the merge point from the current speed at full
+            // acceleration: how long the gap must stay open, on top of the critical gap.
+            let to_clear = (route.merge_s - v.front_s()).max(0.0) + v.length;
+            let (speed, accel) = (v.speed, v.driver.max_accel_mps2);
+            let my_time = ((speed * speed + 2.0 * accel * to_clear).sqrt() - speed) / accel;
             let clear = self.vehicles.iter().enumerate().all(|(j, o)| {
                 if j == i || !o.committed {
                     return true;
                 }
-                let Some(d) = self.distance_to_piece(j, merge_key) else {
+                // Along the other's route, from its centre to where it enters the merge lane
+                // (negative once past; the lane may be shorter than a car).
+                let Some(d) = self.layout.routes[o.route]
+                    .ring_lane_start(route.merge_lane)
+                    .map(|start| start - o.s)
+                    .filter(|d| *d < self.config.horizon_m)
+                else {
                     return true;
                 };
                 // Front of the other vehicle to the merge point; negative while it straddles it.
@@ -673,8 +725,9 @@ impl World {
                 if d <= 0.0 {
                     return true;
                 }
+                // A committed car may speed up: assume at least 2 m/s.
                 front_to_merge > 2.0
-                    && front_to_merge / o.speed.max(0.1) > my_time + v.driver.critical_gap_s
+                    && front_to_merge / o.speed.max(2.0) > my_time + v.driver.critical_gap_s
             });
             if clear {
                 commit.push(i);
@@ -691,12 +744,18 @@ impl World {
         let v = &self.vehicles[i];
         let route = &self.layout.routes[v.route];
         let v0 = route.path.speed_at(v.s + v.length / 2.0) * v.driver.speed_factor;
-        let leader = self.leader(i, true);
-        let mut a = v
-            .driver
-            .idm(v.speed, v0, leader.map(|l| (l.gap_m, l.closing_mps)));
-        if leader.is_some_and(|l| l.merging) {
-            a = a.max(-v.driver.merge_brake_mps2);
+        let mut a = v.driver.idm(
+            v.speed,
+            v0,
+            self.leader(i).map(|l| (l.gap_m, l.closing_mps)),
+        );
+        // A car cutting in ahead: braked for, but only so hard (uncommitted drivers wait
+        // at their line anyway).
+        if v.committed
+            && let Some(m) = self.merging_leader(i)
+        {
+            let cut_in = v.driver.idm(v.speed, v0, Some((m.gap_m, m.closing_mps)));
+            a = a.min(cut_in.max(-v.driver.merge_brake_mps2));
         }
         if !v.committed {
             let to_line = route.yield_s - v.front_s();

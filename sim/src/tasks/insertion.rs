@@ -463,7 +463,7 @@ impl RoundaboutInsertion {
                 }
             }
         };
-        let follow = world.leader(ego, false).map_or(f64::INFINITY, |l| {
+        let follow = world.leader(ego).map_or(f64::INFINITY, |l| {
             self.follower
                 .idm(v, target.max(0.1), Some((l.gap_m, l.closing_mps)))
         });
@@ -513,7 +513,7 @@ impl RoundaboutInsertion {
             };
         }
         if world
-            .leader(ego, false)
+            .leader(ego)
             .is_some_and(|l| l.gap_m < me.speed * r.headway_s)
         {
             reward -= r.headway_penalty * sigma;
@@ -535,9 +535,10 @@ impl RoundaboutInsertion {
             if v.is_ego() || !v.committed {
                 return false;
             }
-            world
-                .leader(j, true)
-                .is_some_and(|l| l.index == ego && l.gap_m.max(0.0) < limit * v.speed)
+            [world.leader(j), world.merging_leader(j)]
+                .into_iter()
+                .flatten()
+                .any(|l| l.index == ego && l.gap_m.max(0.0) < limit * v.speed)
         })
     }
 }

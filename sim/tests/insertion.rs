@@ -1,0 +1,143 @@
+//! The roundabout-insertion task on the bundled montlake_roundabout map: determinism of
+//! episodes and of the evaluation harness, and what the baselines must show.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::sync::Arc;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use sim::baselines::Baseline;
+use sim::eval::{Condition, EvalOptions, evaluate, evaluate_episodes};
+use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
+use sim::world::TrafficLevel;
+use sim::{Env, Outcome};
+
+fn setup() -> Arc<InsertionSetup> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data/osm/montlake_roundabout.osm.pbf");
+    let map = maps::import_file(&path, &Default::default()).unwrap();
+    InsertionSetup::new(Arc::new(map), InsertionConfig::default()).unwrap()
+}
+
+/// 1,000 steps with random actions (episodes reset as they end): rewards as bits, outcomes
+/// and every observation, for the same seed twice and for another seed.
+fn run(setup: &Arc<InsertionSetup>, seed: u64) -> (Vec<u32>, Vec<Option<Outcome>>, u64) {
+    let mut env = RoundaboutInsertion::new(Arc::clone(setup));
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut episode = seed;
+    let mut observation_hash = 0u64;
+    let mut fold = |o: &sim::Observation| {
+        for chunk in o.layers.chunks(8) {
+            observation_hash = observation_hash.rotate_left(5)
+                ^ chunk
+                    .iter()
+                    .fold(0u64, |h, b| h.wrapping_mul(31).wrapping_add(u64::from(*b)));
+        }
+        for s in &o.scalars {
+            observation_hash = observation_hash.rotate_left(7) ^ u64::from(s.to_bits());
+        }
+    };
+    fold(&env.reset(episode));
+    let (mut rewards, mut outcomes) = (Vec::new(), Vec::new());
+    for _ in 0..1000 {
+        let step = env.step(rng.random_range(0..3));
+        fold(&step.observation);
+        rewards.push(step.reward.to_bits());
+        outcomes.push(step.outcome);
+        if step.outcome.is_some() {
+            episode += 1;
+            fold(&env.reset(episode));
+        }
+    }
+    (rewards, outcomes, observation_hash)
+}
+
+#[test]
+fn same_seed_gives_the_same_first_1000_steps() {
+    let setup = setup();
+    let a = run(&setup, 11);
+    assert_eq!(a, run(&setup, 11));
+    let b = run(&setup, 12);
+    assert_ne!(a.0, b.0);
+    assert!(
+        a.1.iter().filter(|o| o.is_some()).count() >= 3,
+        "expected several episodes in 1000 steps"
+    );
+}
+
+#[test]
+fn evaluation_is_the_same_with_one_or_two_threads() {
+    let setup = setup();
+    let conditions = [
+        Condition {
+            traffic: TrafficLevel::High,
+            aggressiveness: 0.5,
+        },
+        Condition {
+            traffic: TrafficLevel::Low,
+            aggressiveness: 0.0,
+        },
+    ];
+    let options = EvalOptions {
+        episodes: 20,
+        seed: 5,
+        lockstep: 3,
+    };
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                evaluate_episodes(&setup, || Baseline::Random, &conditions, &options, &|_| {})
+            })
+    };
+    let (one, two) = (run(1), run(2));
+    let bits = |r: &Vec<Vec<sim::tasks::EpisodeSummary>>| {
+        r.iter()
+            .flatten()
+            .map(|e| (e.outcome, e.steps, e.episode_return.to_bits()))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&one), bits(&two));
+    assert_eq!(one[0].len(), 20);
+}
+
+/// The baselines behave as their names say: never going never arrives (and, waiting at
+/// the line, is never hit), always going crashes in high traffic, and judging the gap
+/// beats acting at random.
+#[test]
+fn baselines_show_what_the_task_asks() {
+    let setup = setup();
+    let high = [Condition {
+        traffic: TrafficLevel::High,
+        aggressiveness: 0.5,
+    }];
+    let options = EvalOptions {
+        episodes: 60,
+        seed: 1,
+        lockstep: 8,
+    };
+    let result = |b: Baseline| evaluate(&setup, || b, &high, &options, &|_| {}).remove(0);
+    let stop = result(Baseline::AlwaysNotPermitted);
+    assert_eq!(stop.reaches, 0.0);
+    assert_eq!(stop.crashes, 0.0);
+    assert_eq!(stop.time_overs, 1.0);
+    let go = result(Baseline::AlwaysPermitted);
+    assert!(
+        go.crashes > 0.05,
+        "always Permitted crashed in {} of high-traffic episodes",
+        go.crashes
+    );
+    assert!(go.reaches > 0.2);
+    let random = result(Baseline::Random);
+    for threshold_m in [25.0, 20.0, 15.0, 10.0] {
+        let rule = result(Baseline::Rule { threshold_m });
+        assert!(
+            rule.reaches > random.reaches,
+            "rule {threshold_m} m reached {} vs random {}",
+            rule.reaches,
+            random.reaches
+        );
+    }
+}
