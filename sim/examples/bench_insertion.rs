@@ -34,6 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut traffic = TrafficLevel::High;
     let mut policy = String::from("random");
     let mut seed: u64 = 0;
+    let mut arrivals: Option<f64> = None;
     let mut args = std::env::args().skip(1);
     while let Some(flag) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{flag} needs a value"));
@@ -43,6 +44,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--traffic" => traffic = value()?.parse()?,
             "--policy" => policy = value()?,
             "--seed" => seed = value()?.parse()?,
+            "--arrivals-per-s" => arrivals = Some(value()?.parse()?),
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -50,6 +52,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map_err(|e| format!("{map_path}: {e}"))?;
     let mut config = InsertionConfig::default();
     config.traffic.level = traffic;
+    if let Some(a) = arrivals {
+        config.traffic.arrivals_per_s = a;
+    }
+    let config_arrivals = config.traffic.arrivals_per_s;
     let setup = InsertionSetup::new(Arc::new(map), config)?;
     let mut env = RoundaboutInsertion::new(Arc::clone(&setup));
     let spec = env.observation_spec();
@@ -87,6 +93,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "steps_per_cpu_s": steps as f64 / cpu_s,
         "mean_other_vehicles": others as f64 / steps.max(1) as f64,
         "traffic": traffic.name(),
+        "arrivals_per_s": config_arrivals,
         "policy": policy,
         "observation": {"channels": spec.channels, "height": spec.height, "width": spec.width, "scalars": spec.scalars},
         "layer_bytes": layer_bytes,

@@ -41,18 +41,19 @@ impl Default for LayoutConfig {
     }
 }
 
-/// One lane entering the ring.
+/// One lane of an arm: entering the ring (an entry) or leaving it (an exit).
 #[derive(Debug, Clone, PartialEq)]
-pub struct Entry {
+pub struct ArmLane {
     pub road: maps::RoadId,
     pub lane: LaneId,
 }
 
-/// One lane leaving the ring.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Exit {
-    pub road: maps::RoadId,
-    pub lane: LaneId,
+/// Every lane of `arms` that the map has.
+fn arm_lanes(map: &Map, arms: &[maps::RoundaboutArm]) -> Vec<ArmLane> {
+    arms.iter()
+        .flat_map(|a| a.lanes.iter().map(|&lane| ArmLane { road: a.road, lane }))
+        .filter(|e| map.lanes.contains_key(&e.lane))
+        .collect()
 }
 
 /// A route from one entry to one exit, with the places along it that matter.
@@ -90,8 +91,8 @@ pub struct RoundaboutLayout {
     pub roundabout: RoundaboutId,
     pub centre: Point,
     pub radius_m: f64,
-    pub entries: Vec<Entry>,
-    pub exits: Vec<Exit>,
+    pub entries: Vec<ArmLane>,
+    pub exits: Vec<ArmLane>,
     pub routes: Vec<RingRoute>,
     /// Indices into `routes` by entry.
     pub routes_by_entry: Vec<Vec<usize>>,
@@ -115,18 +116,8 @@ impl RoundaboutLayout {
             .ok_or_else(|| SimError::Map(format!("roundabout {id} is not in the map")))?;
         let ring: BTreeSet<LaneId> = rb.ring_lanes.iter().copied().collect();
         let outgoing = map.outgoing();
-        let entries: Vec<Entry> = rb
-            .entries
-            .iter()
-            .flat_map(|a| a.lanes.iter().map(|&lane| Entry { road: a.road, lane }))
-            .filter(|e| map.lanes.contains_key(&e.lane))
-            .collect();
-        let exits: Vec<Exit> = rb
-            .exits
-            .iter()
-            .flat_map(|a| a.lanes.iter().map(|&lane| Exit { road: a.road, lane }))
-            .filter(|e| map.lanes.contains_key(&e.lane))
-            .collect();
+        let entries = arm_lanes(map, &rb.entries);
+        let exits = arm_lanes(map, &rb.exits);
         let profile = SpeedProfile {
             lateral_accel_mps2: config.lateral_accel_mps2,
             ..SpeedProfile::default()
@@ -257,8 +248,8 @@ fn build_route(
     rb: &Roundabout,
     ring: &BTreeSet<LaneId>,
     outgoing: &BTreeMap<LaneId, Vec<ConnectionId>>,
-    (entry_index, entry): (usize, &Entry),
-    (exit_index, exit): (usize, &Exit),
+    (entry_index, entry): (usize, &ArmLane),
+    (exit_index, exit): (usize, &ArmLane),
     config: &LayoutConfig,
     profile: SpeedProfile,
 ) -> Option<RingRoute> {

@@ -429,6 +429,38 @@ impl World {
         }
     }
 
+    /// A vehicle (not yet in the world) on `route` with its centre at `s`, uncommitted,
+    /// with the next id.
+    fn new_vehicle(
+        &mut self,
+        route: usize,
+        s: f64,
+        speed: f64,
+        (length, width): (f64, f64),
+        driver: Driver,
+    ) -> Vehicle {
+        let path = &self.layout.routes[route].path;
+        let (position, heading) = path.pose_at(s);
+        let id = self.next_id;
+        self.next_id += 1;
+        Vehicle {
+            id,
+            route,
+            s,
+            speed,
+            accel: 0.0,
+            length,
+            width,
+            driver,
+            committed: false,
+            position,
+            heading,
+            piece: path.piece_at(s, 0),
+            entered_ring_at: None,
+            bicycle: None,
+        }
+    }
+
     /// Adds another vehicle on route `route` with its centre at `s` (for tests and for
     /// scenarios replayed from logs); `committed` marks it as past gap acceptance. Returns
     /// its id.
@@ -440,25 +472,16 @@ impl World {
         aggressiveness: f64,
         committed: bool,
     ) -> u32 {
-        let r = &self.layout.routes[route];
-        let (position, heading) = r.path.pose_at(s);
-        let id = self.next_id;
-        self.next_id += 1;
+        let size = (
+            self.config.vehicle_length_m.at(0.5),
+            self.config.vehicle_width_m.at(0.5),
+        );
+        let driver = Driver::new(&self.config.drivers, aggressiveness);
+        let vehicle = self.new_vehicle(route, s, speed, size, driver);
+        let id = vehicle.id;
         self.vehicles.push(Vehicle {
-            id,
-            route,
-            s,
-            speed,
-            accel: 0.0,
-            length: self.config.vehicle_length_m.at(0.5),
-            width: self.config.vehicle_width_m.at(0.5),
-            driver: Driver::new(&self.config.drivers, aggressiveness),
             committed,
-            position,
-            heading,
-            piece: r.path.piece_at(s, 0),
-            entered_ring_at: None,
-            bicycle: None,
+            ..vehicle
         });
         self.refresh_lookahead();
         id
@@ -480,25 +503,13 @@ impl World {
             let near = same_approach && (v.s - s).abs() < clear_m + (v.length + cfg.length_m) / 2.0;
             !(near || v.footprint().overlaps(&ego_box))
         });
-        let id = self.next_id;
-        self.next_id += 1;
         let rear =
             position.sub(Point::new(heading.cos(), heading.sin()).scale(cfg.wheelbase_m / 2.0));
+        let driver = Driver::new(&self.config.drivers, 0.5);
+        let vehicle = self.new_vehicle(route, s, speed, (cfg.length_m, cfg.width_m), driver);
         self.vehicles.push(Vehicle {
-            id,
-            route,
-            s,
-            speed,
-            accel: 0.0,
-            length: cfg.length_m,
-            width: cfg.width_m,
-            driver: Driver::new(&self.config.drivers, 0.5),
-            committed: false,
-            position,
-            heading,
-            piece: r.path.piece_at(s, 0),
-            entered_ring_at: None,
             bicycle: Some(Bicycle { rear, heading }),
+            ..vehicle
         });
         self.refresh_lookahead();
     }
@@ -826,25 +837,8 @@ impl World {
             }
             None => v0,
         };
-        let (position, heading) = route.path.pose_at(s);
-        let id = self.next_id;
-        self.next_id += 1;
-        self.vehicles.push(Vehicle {
-            id,
-            route: route_index,
-            s,
-            speed,
-            accel: 0.0,
-            length,
-            width,
-            driver,
-            committed: false,
-            position,
-            heading,
-            piece: 0,
-            entered_ring_at: None,
-            bicycle: None,
-        });
+        let vehicle = self.new_vehicle(route_index, s, speed, (length, width), driver);
+        self.vehicles.push(vehicle);
         self.stats.spawned += 1;
     }
 
