@@ -2,3 +2,5 @@
 //! 4 other, 255 ignore): labelled camera images rendered from drivable maps, joint
 //! image-and-label augmentation, public label sets mapped into the classes, and the
 //! manifest, card and tools (stats, split, check, merge) they all share.
+
+pub mod logs;

@@ -1,0 +1,25 @@
+//! Real driving logs: MCAP files and ROS 2 bags (sqlite3 or MCAP storage) read into typed
+//! messages, `logs info` summaries, and INTERACTION track files converted into MCAP.
+//!
+//! - [`source::Log`] opens any of the storage forms and streams raw messages in storage order
+//!   ([`mcap_read`] for MCAP, [`bag`] for rosbag2);
+//! - [`decode`] picks a decoder per topic: ROS messages in CDR or ROS 1 ([`msgs`] over
+//!   [`cdr`]), Foxglove schemas in protobuf or JSON ([`foxglove`]); unknown types are counted;
+//! - [`info`] summarises a log like `ros2 bag info`;
+//! - [`roles`] says which topic is the ego pose, the GPS, the objects, the camera;
+//! - [`tracks`] turns decoded messages into an ego track and object tracks in a map frame,
+//!   [`resample`] puts them on a fixed rate and GPS fixes into the map frame;
+//! - [`interaction`] reads INTERACTION track CSVs and [`convert`] writes them as MCAP.
+
+pub mod bag;
+pub mod cdr;
+pub mod decode;
+pub mod error;
+pub mod foxglove;
+pub mod mcap_read;
+pub mod msgs;
+pub mod source;
+
+pub use decode::{Codec, Decoded, DecodedLog, DecodedMessage, MessageKind, read_decoded};
+pub use error::{DecodeError, LogError, LogResult};
+pub use source::{Log, RawMessage, ReadOptions, ReadReport, StorageKind, Topic};
