@@ -3,4 +3,20 @@
 //! image-and-label augmentation, public label sets mapped into the classes, and the
 //! manifest, card and tools (stats, split, check, merge) they all share.
 
+pub mod augment;
+pub mod check;
+pub mod classes;
+pub mod error;
+pub mod generate;
+pub mod image_io;
+pub mod import;
 pub mod logs;
+pub mod manifest;
+pub mod merge;
+pub mod render;
+pub mod split;
+pub mod stats;
+
+pub use classes::{Class, IGNORE};
+pub use error::{DatasetError, Result};
+pub use manifest::{Card, Dataset, Item};

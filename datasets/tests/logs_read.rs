@@ -88,10 +88,24 @@ fn husky_drive_reads_the_same_in_all_three_storages() {
     for topic in summary["topics"].as_array().unwrap() {
         let name = topic["name"].as_str().unwrap();
         let msgs: Vec<_> = reference.iter().filter(|(t, _, _)| t == name).collect();
-        assert_eq!(msgs.first().unwrap().2, topic["first_message"], "{name}: first");
-        assert_eq!(msgs.last().unwrap().2, topic["last_message"], "{name}: last");
-        assert_eq!(msgs.first().unwrap().1, topic["first_timestamp_ns"].as_u64().unwrap());
-        assert_eq!(msgs.last().unwrap().1, topic["last_timestamp_ns"].as_u64().unwrap());
+        assert_eq!(
+            msgs.first().unwrap().2,
+            topic["first_message"],
+            "{name}: first"
+        );
+        assert_eq!(
+            msgs.last().unwrap().2,
+            topic["last_message"],
+            "{name}: last"
+        );
+        assert_eq!(
+            msgs.first().unwrap().1,
+            topic["first_timestamp_ns"].as_u64().unwrap()
+        );
+        assert_eq!(
+            msgs.last().unwrap().1,
+            topic["last_timestamp_ns"].as_u64().unwrap()
+        );
     }
     println!(
         "husky: 3 storages x {} messages, identical decoded streams",
@@ -172,7 +186,10 @@ fn map_json<K: std::fmt::Display, V: std::fmt::Display>(m: &BTreeMap<K, V>) -> V
 fn record_json(record: &mcap::records::Record<'_>) -> Value {
     use mcap::records::Record;
     let (ty, mut fields): (&str, Vec<(&str, Value)>) = match record {
-        Record::Header(h) => ("Header", vec![("library", n(&h.library)), ("profile", n(&h.profile))]),
+        Record::Header(h) => (
+            "Header",
+            vec![("library", n(&h.library)), ("profile", n(&h.profile))],
+        ),
         Record::Footer(f) => (
             "Footer",
             vec![
@@ -251,7 +268,10 @@ fn record_json(record: &mcap::records::Record<'_>) -> Value {
             vec![
                 ("attachment_count", n(s.attachment_count)),
                 ("channel_count", n(s.channel_count)),
-                ("channel_message_counts", map_json(&s.channel_message_counts)),
+                (
+                    "channel_message_counts",
+                    map_json(&s.channel_message_counts),
+                ),
                 ("chunk_count", n(s.chunk_count)),
                 ("message_count", n(s.message_count)),
                 ("message_end_time", n(s.message_end_time)),
@@ -266,7 +286,11 @@ fn record_json(record: &mcap::records::Record<'_>) -> Value {
         ),
         Record::MetadataIndex(m) => (
             "MetadataIndex",
-            vec![("length", n(m.length)), ("name", n(&m.name)), ("offset", n(m.offset))],
+            vec![
+                ("length", n(m.length)),
+                ("name", n(&m.name)),
+                ("offset", n(m.offset)),
+            ],
         ),
         Record::SummaryOffset(s) => (
             "SummaryOffset",
@@ -342,7 +366,10 @@ fn conformance_subset_matches_the_expected_records() {
         assert_eq!(got, expected_messages, "{}", mcap_path.display());
         messages_checked += got.len();
     }
-    println!("conformance: {} files, {messages_checked} messages", files.len());
+    println!(
+        "conformance: {} files, {messages_checked} messages",
+        files.len()
+    );
 }
 
 #[test]
@@ -366,7 +393,11 @@ fn time_range_and_topic_filters() {
         })
         .unwrap();
         // 2.5 Hz over 100 s.
-        assert!((245..=255).contains(&times.len()), "{storage}: {}", times.len());
+        assert!(
+            (245..=255).contains(&times.len()),
+            "{storage}: {}",
+            times.len()
+        );
         assert!(times.iter().all(|t| (start..end).contains(t)));
     }
 }

@@ -108,6 +108,26 @@ pub enum Group {
         #[command(subcommand)]
         command: MapCommand,
     },
+    /// Driving agents: train DQN / Double DQN on a task, evaluate them next to the baselines.
+    Agent {
+        #[command(subcommand)]
+        command: crate::commands::agent::AgentCommand,
+    },
+    /// Segmentation datasets: import, augment, statistics, split, check, merge.
+    Dataset {
+        #[command(subcommand)]
+        command: crate::commands::dataset::DatasetCommand,
+    },
+    /// The PSPNet-style segmenter: train, evaluate, predict, benchmark.
+    Segmenter {
+        #[command(subcommand)]
+        command: crate::commands::segmenter::SegmenterCommand,
+    },
+    /// Real logs: summarise MCAP files and ROS 2 bags, convert INTERACTION tracks to MCAP.
+    Logs {
+        #[command(subcommand)]
+        command: crate::commands::logs::LogsCommand,
+    },
 }
 
 #[derive(Debug, Subcommand)]

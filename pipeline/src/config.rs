@@ -26,6 +26,9 @@ use crate::error::CliError;
 pub struct Config {
     #[serde(default)]
     pub map: MapConfig,
+    /// `[agent.dqn]` (hyper-parameters) and `[agent.task]` (the task's settings).
+    #[serde(default)]
+    pub agent: crate::commands::agent::AgentConfig,
     /// The folder of the file, for its relative paths (not part of the TOML).
     #[serde(skip)]
     pub base_dir: PathBuf,

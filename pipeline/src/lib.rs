@@ -25,5 +25,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     };
     match &cli.command {
         cli::Group::Map { command } => commands::map::run(&ctx, command),
+        cli::Group::Agent { command } => commands::agent::run(&ctx, command),
+        cli::Group::Dataset { command } => commands::dataset::run(&ctx, command),
+        cli::Group::Logs { command } => commands::logs::run(&ctx, command),
+        cli::Group::Segmenter { command } => commands::segmenter::run(&ctx, command),
     }
 }

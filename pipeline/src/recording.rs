@@ -268,6 +268,77 @@ pub fn log_map(rec: &RecordingStream, map: &Map) -> Result<()> {
     Ok(())
 }
 
+/// Entity under which dataset samples are logged; the class table is logged static here,
+/// so every image below it gets the class names and colours.
+pub const DATASET_ENTITY: &str = "dataset";
+
+/// Logs the class table (0-4 and 255 ignore) as a static AnnotationContext on `dataset`.
+pub fn log_class_context(rec: &RecordingStream) -> Result<()> {
+    log_class_context_at(rec, DATASET_ENTITY)
+}
+
+/// Logs the class table as a static AnnotationContext on `entity`, so every segmentation
+/// image below it gets the class names and colours.
+pub fn log_class_context_at(rec: &RecordingStream, entity: &str) -> Result<()> {
+    let table = datasets::classes::class_table();
+    let context = rerun::AnnotationContext::new(table.iter().map(|c| {
+        let [r, g, b] = c.color;
+        (
+            u16::from(c.id),
+            c.name.as_str(),
+            rerun::Rgba32::from_rgb(r, g, b),
+        )
+    }));
+    rec.log_static(entity, &context)
+        .context("rerun: cannot log the class table")?;
+    Ok(())
+}
+
+/// Logs an RGB image under `entity` at the current time.
+pub fn log_rgb(rec: &RecordingStream, entity: &str, image: &image::RgbImage) -> Result<()> {
+    let (w, h) = image.dimensions();
+    rec.log(
+        entity,
+        &rerun::Image::from_rgb24(image.as_raw().clone(), [w, h]),
+    )
+    .with_context(|| format!("rerun: cannot log {entity}"))?;
+    Ok(())
+}
+
+/// Logs a label of class ids as a SegmentationImage under `entity` at the current time
+/// (coloured by the class table logged above it).
+pub fn log_segmentation(
+    rec: &RecordingStream,
+    entity: &str,
+    label: &image::GrayImage,
+) -> Result<()> {
+    let (w, h) = label.dimensions();
+    rec.log(
+        entity,
+        &rerun::SegmentationImage::new(
+            label.as_raw().clone(),
+            rerun::datatypes::ImageFormat::segmentation([w, h], rerun::ChannelDatatype::U8),
+        ),
+    )
+    .with_context(|| format!("rerun: cannot log {entity}"))?;
+    Ok(())
+}
+
+/// Logs one sample at `frame` on the `frame` timeline: the image under
+/// `dataset/<name>/image` and its label as a SegmentationImage under `dataset/<name>/label`.
+/// Call [`log_class_context`] once first.
+pub fn log_sample(
+    rec: &RecordingStream,
+    name: &str,
+    frame: i64,
+    image: &image::RgbImage,
+    label: &image::GrayImage,
+) -> Result<()> {
+    rec.set_time_sequence("frame", frame);
+    log_rgb(rec, &format!("{DATASET_ENTITY}/{name}/image"), image)?;
+    log_segmentation(rec, &format!("{DATASET_ENTITY}/{name}/label"), label)
+}
+
 /// Logs a route's path under `world/route`.
 pub fn log_route(rec: &RecordingStream, points: &[Point]) -> Result<()> {
     rec.log_static(
@@ -277,6 +348,82 @@ pub fn log_route(rec: &RecordingStream, points: &[Point]) -> Result<()> {
             .with_radii([Radius::new_scene_units(0.5)]),
     )
     .context("rerun: cannot log the route")?;
+    Ok(())
+}
+
+/// Logs scalar series (`(entity, value)`) at the current time (training curves, Q-values).
+pub fn log_scalars(rec: &RecordingStream, series: &[(&str, f64)]) -> Result<()> {
+    for (entity, value) in series {
+        rec.log(*entity, &rerun::Scalars::single(*value))
+            .with_context(|| format!("rerun: cannot log {entity}"))?;
+    }
+    Ok(())
+}
+
+/// Logs road users as boxes (1.5 m tall, on the ground) under `entity`, the ego highlighted.
+pub fn log_actors(
+    rec: &RecordingStream,
+    entity: &str,
+    actors: &[sim::Actor],
+    ego: usize,
+) -> Result<()> {
+    let centres = actors
+        .iter()
+        .map(|a| [a.position.x as f32, a.position.y as f32, 0.75]);
+    let half_sizes = actors
+        .iter()
+        .map(|a| [a.length_m as f32 / 2.0, a.width_m as f32 / 2.0, 0.75]);
+    let rotations = actors.iter().map(|a| {
+        let half = a.heading_rad as f32 / 2.0;
+        rerun::Quaternion::from_xyzw([0.0, 0.0, half.sin(), half.cos()])
+    });
+    let colors = (0..actors.len()).map(|i| {
+        if i == ego {
+            Color::from_rgb(40, 230, 90)
+        } else {
+            Color::from_rgb(230, 120, 40)
+        }
+    });
+    rec.log(
+        entity,
+        &rerun::Boxes3D::from_centers_and_half_sizes(centres, half_sizes)
+            .with_quaternions(rotations)
+            .with_colors(colors),
+    )
+    .with_context(|| format!("rerun: cannot log {entity}"))?;
+    Ok(())
+}
+
+/// Logs a path on the ground (an ego's trajectory so far) under `entity`.
+pub fn log_path(rec: &RecordingStream, entity: &str, points: &[Point]) -> Result<()> {
+    rec.log(
+        entity,
+        &LineStrips3D::new([strip(points, 0.2)])
+            .with_colors([Color::from_rgb(40, 230, 90)])
+            .with_radii([Radius::new_scene_units(0.3)]),
+    )
+    .with_context(|| format!("rerun: cannot log {entity}"))?;
+    Ok(())
+}
+
+/// Logs a layer-major `u8` frame (`[layer, height, width]`) as one grey image per layer under
+/// `entity/<layer name>`.
+pub fn log_layers(
+    rec: &RecordingStream,
+    entity: &str,
+    frame: &[u8],
+    names: &[&str],
+    width: usize,
+    height: usize,
+) -> Result<()> {
+    let size = width * height;
+    for (layer, name) in frame.chunks_exact(size.max(1)).zip(names) {
+        rec.log(
+            format!("{entity}/{name}"),
+            &rerun::Image::from_l8(layer.to_vec(), [width as u32, height as u32]),
+        )
+        .with_context(|| format!("rerun: cannot log {entity}/{name}"))?;
+    }
     Ok(())
 }
 

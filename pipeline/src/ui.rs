@@ -136,6 +136,20 @@ impl Progress<'_> {
         }
     }
 
+    /// Reports that `done` of `total` items of the current step are finished: the
+    /// spinner's message on a terminal, otherwise a log line each tenth of the way. Takes
+    /// `&self`, so parallel workers can call it with their own counts.
+    pub fn items(&self, what: &str, done: u64, total: u64) {
+        match &self.bar {
+            Some(bar) => bar.set_message(format!("{what} {done}/{total}")),
+            None if total > 0 && done > 0 && done * 10 / total > (done - 1) * 10 / total => {
+                self.ui
+                    .info(&format!("{}: {what} {done}/{total}", self.command));
+            }
+            None => {}
+        }
+    }
+
     /// A line that stays (above the spinner on a terminal).
     pub fn note(&self, message: &str) {
         if self.ui.verbosity < Verbosity::Normal {

@@ -181,7 +181,11 @@ impl Bag {
                 let data = match self.compression {
                     BagCompression::None => m.data,
                     BagCompression::ZstdPerMessage => {
-                        match decompress_message(m.data, options.limits.max_record_bytes, &mut decompressed) {
+                        match decompress_message(
+                            m.data,
+                            options.limits.max_record_bytes,
+                            &mut decompressed,
+                        ) {
                             Ok(()) => &decompressed[..],
                             Err(_) => {
                                 total.skipped_messages += 1;
@@ -292,7 +296,9 @@ fn read_db3_topics(conn: &Connection, path: &Path) -> LogResult<Vec<(i64, Topic)
     let mut definitions: HashMap<String, (String, Vec<u8>)> = HashMap::new();
     if has_table(conn, "message_definitions") {
         let mut stmt = conn
-            .prepare("SELECT topic_type, encoding, encoded_message_definition FROM message_definitions")
+            .prepare(
+                "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions",
+            )
             .map_err(db_error)?;
         let rows = stmt
             .query_map([], |row| {
@@ -348,7 +354,11 @@ fn read_db3(
 ) -> LogResult<ReadReport> {
     let conn = open_db3(path)?;
     let with_ids = read_db3_topics(&conn, path)?;
-    let ids: HashMap<i64, usize> = with_ids.iter().enumerate().map(|(i, (id, _))| (*id, i)).collect();
+    let ids: HashMap<i64, usize> = with_ids
+        .iter()
+        .enumerate()
+        .map(|(i, (id, _))| (*id, i))
+        .collect();
     let topics: Vec<Topic> = with_ids.into_iter().map(|(_, t)| t).collect();
     let mut report = ReadReport::default();
     let db_error = |e: rusqlite::Error| LogError::format(path, format!("sqlite3 messages: {e}"));
@@ -369,8 +379,10 @@ fn read_db3(
             report.messages_without_channel += 1;
             continue;
         };
-        let (Ok(log_time), Ok(data)) = (u64::try_from(timestamp), row.get_ref(2).map_err(db_error)?.as_blob())
-        else {
+        let (Ok(log_time), Ok(data)) = (
+            u64::try_from(timestamp),
+            row.get_ref(2).map_err(db_error)?.as_blob(),
+        ) else {
             report.skipped_messages += 1;
             continue;
         };
@@ -408,7 +420,10 @@ mod tests {
         assert_eq!(m.relative_file_paths, vec!["a.db3".to_owned()]);
         assert_eq!(m.topics_with_message_count[0].topic_metadata.name, "/fix");
         // Older writers give the QoS profiles as one string.
-        let older = text.replace("offered_qos_profiles: []", "offered_qos_profiles: \"- history: 3\"");
+        let older = text.replace(
+            "offered_qos_profiles: []",
+            "offered_qos_profiles: \"- history: 3\"",
+        );
         assert_eq!(parse_metadata(&older)?.message_count, 3);
         assert!(parse_metadata("just: text").is_err());
         Ok(())

@@ -339,7 +339,10 @@ mod tests {
             Err(DecodeError::LengthTooLarge { .. })
         ));
         let mut r = Reader::cdr(&bytes)?;
-        assert!(matches!(r.string(), Err(DecodeError::LengthTooLarge { .. })));
+        assert!(matches!(
+            r.string(),
+            Err(DecodeError::LengthTooLarge { .. })
+        ));
         Ok(())
     }
 

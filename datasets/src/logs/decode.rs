@@ -45,10 +45,22 @@ const ROS_TYPES: [(MessageKind, &str, &str); 10] = [
     (MessageKind::NavSatFix, "sensor_msgs", "NavSatFix"),
     (MessageKind::Imu, "sensor_msgs", "Imu"),
     (MessageKind::TfMessage, "tf2_msgs", "TFMessage"),
-    (MessageKind::Detection3DArray, "vision_msgs", "Detection3DArray"),
+    (
+        MessageKind::Detection3DArray,
+        "vision_msgs",
+        "Detection3DArray",
+    ),
     (MessageKind::Image, "sensor_msgs", "Image"),
-    (MessageKind::CompressedImage, "sensor_msgs", "CompressedImage"),
-    (MessageKind::DiagnosticArray, "diagnostic_msgs", "DiagnosticArray"),
+    (
+        MessageKind::CompressedImage,
+        "sensor_msgs",
+        "CompressedImage",
+    ),
+    (
+        MessageKind::DiagnosticArray,
+        "diagnostic_msgs",
+        "DiagnosticArray",
+    ),
 ];
 
 /// Foxglove schema names (protobuf `foxglove.X`; JSON schemas use the same names).
@@ -75,7 +87,10 @@ impl MessageKind {
     /// The kind of a Foxglove schema name (`foxglove.LocationFix`, or `LocationFix`).
     pub fn from_foxglove_name(name: &str) -> Option<Self> {
         let ty = name.strip_prefix("foxglove.").unwrap_or(name);
-        FOXGLOVE_TYPES.iter().find(|(_, t)| *t == ty).map(|(k, _)| *k)
+        FOXGLOVE_TYPES
+            .iter()
+            .find(|(_, t)| *t == ty)
+            .map(|(k, _)| *k)
     }
 
     /// The ROS 2 type name (`nav_msgs/msg/Odometry`) or the Foxglove one.
@@ -94,7 +109,10 @@ impl MessageKind {
 /// How a topic's payloads are decoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Codec {
-    Ros { kind: MessageKind, format: WireFormat },
+    Ros {
+        kind: MessageKind,
+        format: WireFormat,
+    },
     FoxgloveProtobuf(MessageKind),
     FoxgloveJson(MessageKind),
 }
@@ -102,7 +120,13 @@ pub enum Codec {
 impl Codec {
     /// The decoder for `topic`, or why there is none.
     pub fn for_topic(topic: &Topic) -> Result<Self, String> {
-        let unsupported = || format!("{} in {} encoding", topic.type_name, display_encoding(&topic.encoding));
+        let unsupported = || {
+            format!(
+                "{} in {} encoding",
+                topic.type_name,
+                display_encoding(&topic.encoding)
+            )
+        };
         match topic.encoding.as_str() {
             "cdr" | "ros1" => {
                 let kind = MessageKind::from_ros_name(&topic.type_name).ok_or_else(unsupported)?;
@@ -173,7 +197,11 @@ pub enum Decoded {
     Foxglove(foxglove::FoxgloveMessage),
 }
 
-fn decode_ros(kind: MessageKind, format: WireFormat, payload: &[u8]) -> Result<Decoded, DecodeError> {
+fn decode_ros(
+    kind: MessageKind,
+    format: WireFormat,
+    payload: &[u8],
+) -> Result<Decoded, DecodeError> {
     fn d<T: Wire>(payload: &[u8], format: WireFormat) -> Result<T, DecodeError> {
         msgs::decode(payload, format)
     }
@@ -231,11 +259,12 @@ pub struct DecodedLog {
 
 impl DecodedLog {
     /// The messages of one topic, in order.
-    pub fn topic_messages<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a DecodedMessage> + 'a {
+    pub fn topic_messages<'a>(
+        &'a self,
+        name: &'a str,
+    ) -> impl Iterator<Item = &'a DecodedMessage> + 'a {
         let index = self.topics.iter().position(|t| t.name == name);
-        self.messages
-            .iter()
-            .filter(move |m| Some(m.topic) == index)
+        self.messages.iter().filter(move |m| Some(m.topic) == index)
     }
 
     /// Sorts the messages by log time; equal times keep storage order.
@@ -266,11 +295,13 @@ pub fn read_decoded(log: &Log, options: &ReadOptions) -> LogResult<DecodedLog> {
                 message,
             }),
             Err((unsupported, error)) => {
-                let entry = undecoded.entry(topic.name.clone()).or_insert_with(|| Undecoded {
-                    type_name: topic.type_name.clone(),
-                    unsupported,
-                    ..Default::default()
-                });
+                let entry = undecoded
+                    .entry(topic.name.clone())
+                    .or_insert_with(|| Undecoded {
+                        type_name: topic.type_name.clone(),
+                        unsupported,
+                        ..Default::default()
+                    });
                 entry.count += 1;
                 if entry.unsupported.is_none() && entry.first_error.is_none() {
                     entry.first_error = Some(error);

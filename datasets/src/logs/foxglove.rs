@@ -24,7 +24,9 @@ pub struct Timestamp {
 
 impl Timestamp {
     pub fn nanos(&self) -> i64 {
-        self.sec.saturating_mul(1_000_000_000).saturating_add(i64::from(self.nsec))
+        self.sec
+            .saturating_mul(1_000_000_000)
+            .saturating_add(i64::from(self.nsec))
     }
 }
 
@@ -232,7 +234,9 @@ impl<'a> Fields<'a> {
                 return Ok(value);
             }
         }
-        Err(DecodeError::Invalid("protobuf varint longer than 10 bytes".into()))
+        Err(DecodeError::Invalid(
+            "protobuf varint longer than 10 bytes".into(),
+        ))
     }
 
     fn take(&mut self, n: u64, what: &'static str) -> Result<&'a [u8]> {
@@ -293,7 +297,9 @@ impl<'a> Iterator for Fields<'a> {
 fn len_bytes<'a>(v: Value<'a>) -> Result<&'a [u8]> {
     match v {
         Value::Len(b) => Ok(b),
-        _ => Err(DecodeError::Invalid("expected a length-delimited field".into())),
+        _ => Err(DecodeError::Invalid(
+            "expected a length-delimited field".into(),
+        )),
     }
 }
 
@@ -366,7 +372,9 @@ fn push_doubles(out: &mut Vec<f64>, v: Value<'_>) -> Result<()> {
         Value::Fixed64(bits) => out.push(f64::from_bits(bits)),
         Value::Len(b) => {
             if b.len() % 8 != 0 {
-                return Err(DecodeError::Invalid("packed doubles not a multiple of 8 bytes".into()));
+                return Err(DecodeError::Invalid(
+                    "packed doubles not a multiple of 8 bytes".into(),
+                ));
             }
             out.extend(
                 b.chunks_exact(8)
@@ -533,8 +541,17 @@ mod tests {
         else {
             panic!("not a location fix")
         };
-        assert_eq!(fix.timestamp, Timestamp { sec: 1_700_000_000, nsec: 5 });
-        assert_eq!((fix.latitude, fix.longitude, fix.altitude), (42.5, -71.25, 7.0));
+        assert_eq!(
+            fix.timestamp,
+            Timestamp {
+                sec: 1_700_000_000,
+                nsec: 5
+            }
+        );
+        assert_eq!(
+            (fix.latitude, fix.longitude, fix.altitude),
+            (42.5, -71.25, 7.0)
+        );
         assert_eq!(fix.position_covariance.len(), 9);
         assert_eq!(fix.position_covariance_type, 2);
         assert_eq!(fix.frame_id, "gps");
@@ -568,7 +585,10 @@ mod tests {
         };
         assert_eq!(u.entities.len(), 1);
         let e = &u.entities[0];
-        assert_eq!((e.id.as_str(), e.frame_id.as_str(), e.other_primitives), ("car-7", "map", 1));
+        assert_eq!(
+            (e.id.as_str(), e.frame_id.as_str(), e.other_primitives),
+            ("car-7", "map", 1)
+        );
         assert_eq!(e.cubes[0].pose.position.x, 10.0);
         assert_eq!(e.cubes[0].size.y, 1.8);
 

@@ -46,6 +46,8 @@ pub enum McapEvent<'a> {
     /// A record in file order; records inside a chunk come in place of the chunk, with
     /// `in_chunk` set. Message indexes and chunks themselves are not passed on.
     Record { record: Record<'a>, in_chunk: bool },
+    /// A chunk begins (its records follow, unless it is skipped).
+    Chunk { compression: &'a str },
     /// A chunk that was dropped with everything in it.
     ChunkSkipped { reason: String },
     /// A chunk whose time range lies outside the requested one: only its schemas and channels
@@ -181,6 +183,13 @@ fn visit_chunk(
         Ok(_) => return skip(visit, "chunk record did not parse as a chunk".into()),
         Err(e) => return skip(visit, format!("bad chunk header: {e}")),
     };
+    if visit(McapEvent::Chunk {
+        compression: &header.compression,
+    })
+    .is_break()
+    {
+        return ChunkOutcome::Break;
+    }
     // A chunk outside the time range is still unpacked for the schemas and channels it may
     // define (later messages can refer to them), but its messages are not parsed.
     let outside_range = options.time_range.is_some_and(|(start, end)| {
@@ -427,6 +436,13 @@ pub fn read_messages<R: Read>(
             McapEvent::Record { record, .. } => record,
             McapEvent::ChunkSkipped { reason } => {
                 report.skipped_chunks.push(reason);
+                return ControlFlow::Continue(());
+            }
+            McapEvent::Chunk { compression } => {
+                *facts
+                    .chunk_compressions
+                    .entry(compression.to_owned())
+                    .or_default() += 1;
                 return ControlFlow::Continue(());
             }
             McapEvent::ChunkOutsideRange => {

@@ -13,10 +13,14 @@
 
 pub mod bag;
 pub mod cdr;
+pub mod convert;
 pub mod decode;
 pub mod error;
 pub mod foxglove;
+pub mod info;
+pub mod interaction;
 pub mod mcap_read;
+pub mod msgdefs;
 pub mod msgs;
 pub mod source;
 

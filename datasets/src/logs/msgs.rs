@@ -112,9 +112,9 @@ impl<'de, const N: usize> Deserialize<'de> for Array<N> {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
         let v = Vec::<f64>::deserialize(d)?;
         let len = v.len();
-        let a: [f64; N] = v.try_into().map_err(|_| {
-            serde::de::Error::custom(format!("expected {N} numbers, found {len}"))
-        })?;
+        let a: [f64; N] = v
+            .try_into()
+            .map_err(|_| serde::de::Error::custom(format!("expected {N} numbers, found {len}")))?;
         Ok(Array(a))
     }
 }
@@ -393,9 +393,25 @@ impl Quaternion {
 }
 
 /// Decodes one payload of a message type.
+///
+/// The message must fill the payload: CDR writers pad the end to 4 bytes at most, ROS 1 has
+/// no padding. More bytes left over mean the payload is not this type, or a length field
+/// inside it is corrupt (a string length of 0 still parses, and would otherwise yield a
+/// silently wrong message).
 pub fn decode<T: Wire>(payload: &[u8], format: super::cdr::WireFormat) -> Result<T> {
     let mut r = Reader::new(payload, format)?;
-    T::read(&mut r)
+    let message = T::read(&mut r)?;
+    let allowed_padding = match format {
+        super::cdr::WireFormat::Ros1 => 0,
+        super::cdr::WireFormat::Cdr => 3,
+    };
+    if r.remaining() > allowed_padding {
+        return Err(DecodeError::Invalid(format!(
+            "{} bytes left after the message (at most {allowed_padding} of padding expected)",
+            r.remaining()
+        )));
+    }
+    Ok(message)
 }
 
 /// Encodes one message as little-endian CDR.

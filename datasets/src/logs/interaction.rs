@@ -1,0 +1,195 @@
+//! INTERACTION dataset track files (`vehicle_tracks_NNN.csv`, optionally gzipped): one row per
+//! (vehicle, frame) with position, velocity and heading in the Lanelet2 map's local x/y frame.
+//!
+//! The header must be exactly the per-recording format's; every numeric field is parsed as
+//! f64 (the files carry `-0` and float round-off digits); CRLF and a missing final newline are
+//! accepted. A malformed row is skipped and counted with its line number.
+
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::Path;
+
+use serde::Serialize;
+
+use super::error::{LogError, LogResult};
+
+/// The header of a per-recording track file.
+pub const TRACK_HEADER: &str =
+    "track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width";
+
+/// One row: a vehicle at one frame.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TrackRow {
+    pub track_id: u32,
+    pub frame_id: u32,
+    pub timestamp_ms: u64,
+    pub agent_type: String,
+    /// Centre position, metres, map frame.
+    pub x: f64,
+    pub y: f64,
+    /// Velocity, m/s, map frame.
+    pub vx: f64,
+    pub vy: f64,
+    /// Heading, radians counter-clockwise from +x.
+    pub psi_rad: f64,
+    pub length: f64,
+    pub width: f64,
+}
+
+/// A whole track file.
+#[derive(Debug, Clone, Default)]
+pub struct TrackFile {
+    /// Rows in file order.
+    pub rows: Vec<TrackRow>,
+    /// Skipped rows: (line number, reason).
+    pub skipped: Vec<(usize, String)>,
+}
+
+impl TrackFile {
+    /// Row indices per timestamp (ms), in time order; within a frame in file order.
+    pub fn frames(&self) -> BTreeMap<u64, Vec<usize>> {
+        let mut frames: BTreeMap<u64, Vec<usize>> = BTreeMap::new();
+        for (i, row) in self.rows.iter().enumerate() {
+            frames.entry(row.timestamp_ms).or_default().push(i);
+        }
+        frames
+    }
+
+    /// The share of rows whose position lies inside `bounds` grown by `margin` metres: a
+    /// check that the tracks belong to a map (a wrong map puts almost none inside).
+    pub fn share_inside(&self, bounds: &maps::geometry::Bounds, margin: f64) -> f64 {
+        let inside = self
+            .rows
+            .iter()
+            .filter(|r| {
+                r.x >= bounds.min.x - margin
+                    && r.x <= bounds.max.x + margin
+                    && r.y >= bounds.min.y - margin
+                    && r.y <= bounds.max.y + margin
+            })
+            .count();
+        inside as f64 / self.rows.len().max(1) as f64
+    }
+
+    /// The distinct track ids, ascending.
+    pub fn track_ids(&self) -> Vec<u32> {
+        let mut ids: Vec<u32> = self.rows.iter().map(|r| r.track_id).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids
+    }
+}
+
+/// Reads a track file (`.csv` or `.csv.gz`).
+pub fn read_track_file(path: &Path) -> LogResult<TrackFile> {
+    let raw = std::fs::read(path).map_err(|e| LogError::io(path, e))?;
+    let text = if raw.starts_with(&[0x1f, 0x8b]) {
+        let mut out = String::new();
+        flate2::read::MultiGzDecoder::new(&raw[..])
+            .read_to_string(&mut out)
+            .map_err(|e| LogError::format(path, format!("gzip: {e}")))?;
+        out
+    } else {
+        String::from_utf8(raw).map_err(|_| LogError::format(path, "not UTF-8 text"))?
+    };
+    parse_tracks(&text).map_err(|m| LogError::format(path, m))
+}
+
+/// Parses the text of a track file.
+pub fn parse_tracks(text: &str) -> Result<TrackFile, String> {
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or("").trim_end_matches('\r');
+    if header != TRACK_HEADER {
+        return Err(format!(
+            "not an INTERACTION per-recording track file: the header is `{header}`, \
+             expected `{TRACK_HEADER}`"
+        ));
+    }
+    let mut file = TrackFile::default();
+    for (i, line) in lines.enumerate() {
+        let line = line.trim_end_matches('\r');
+        if line.is_empty() {
+            continue;
+        }
+        match parse_row(line) {
+            Ok(row) => file.rows.push(row),
+            Err(reason) => file.skipped.push((i + 2, reason)),
+        }
+    }
+    if file.rows.is_empty() {
+        return Err(match file.skipped.first() {
+            Some((line, reason)) => format!("no readable rows (line {line}: {reason})"),
+            None => "no rows".to_owned(),
+        });
+    }
+    Ok(file)
+}
+
+fn parse_row(line: &str) -> Result<TrackRow, String> {
+    let fields: Vec<&str> = line.split(',').collect();
+    if fields.len() != 11 {
+        return Err(format!("{} fields, expected 11", fields.len()));
+    }
+    let int = |i: usize, name: &str| -> Result<u64, String> {
+        fields[i]
+            .trim()
+            .parse::<u64>()
+            .map_err(|_| format!("{name} `{}` is not a whole number", fields[i]))
+    };
+    let num = |i: usize, name: &str| -> Result<f64, String> {
+        let v: f64 = fields[i]
+            .trim()
+            .parse()
+            .map_err(|_| format!("{name} `{}` is not a number", fields[i]))?;
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(format!("{name} is not finite"))
+        }
+    };
+    let small =
+        |v: u64, name: &str| u32::try_from(v).map_err(|_| format!("{name} {v} is too large"));
+    Ok(TrackRow {
+        track_id: small(int(0, "track_id")?, "track_id")?,
+        frame_id: small(int(1, "frame_id")?, "frame_id")?,
+        timestamp_ms: int(2, "timestamp_ms")?,
+        agent_type: fields[3].trim().to_owned(),
+        x: num(4, "x")?,
+        y: num(5, "y")?,
+        vx: num(6, "vx")?,
+        vy: num(7, "vy")?,
+        psi_rad: num(8, "psi_rad")?,
+        length: num(9, "length")?,
+        width: num(10, "width")?,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crlf_negative_zero_round_off_and_a_bad_row() -> Result<(), String> {
+        let text = format!(
+            "{TRACK_HEADER}\r\n1,1,100,car,1011.3889999999999,980.5,-0,0.5,-0,4.5,1.8\r\n\
+             1,2,200,car,1011.4,980.6,0.1,0.5,0.1,4.5,1.8\r\n2,2,200,car,x,1,1,1,1,1,1\r\n\
+             2,3,300,car,1000,1000,1,0,0,5.3420000000000005,2"
+        );
+        let file = parse_tracks(&text)?;
+        assert_eq!(file.rows.len(), 3);
+        assert_eq!(file.skipped.len(), 1);
+        assert_eq!(file.skipped[0].0, 4);
+        assert!((file.rows[0].x - 1011.389).abs() < 1e-9);
+        assert_eq!(file.rows[0].vx, 0.0);
+        assert!((file.rows[2].length - 5.342).abs() < 1e-12);
+        assert_eq!(file.frames().len(), 3);
+        assert_eq!(file.track_ids(), vec![1, 2]);
+        Ok(())
+    }
+
+    #[test]
+    fn wrong_header_is_an_error() {
+        assert!(parse_tracks("case_id,track_id,frame_id\n1,2,3").is_err());
+        assert!(parse_tracks("").is_err());
+    }
+}

@@ -1,0 +1,114 @@
+//! Times the DQN gradient step of `models::dqn::Learner::learn` — the one training runs —
+//! for the speed comparison with PyTorch (`scripts/bench_qnet.py` runs this in release mode
+//! with `RAYON_NUM_THREADS` set, next to the same network and step in PyTorch).
+//!
+//! One step: the target network on the next observations, the online network on them
+//! (Double DQN's action choice), the online network on the observations with gradients,
+//! the Huber TD loss, backward, Adam. Input: `[batch, 16, 84, 84]` layers (4 layers × 4
+//! frames) and 6 scalars, 3 actions; the batch is random and rebuilt outside the timing.
+//!
+//! Usage: `bench_qnet_step [--network default|its] [--batch 32] [--steps 60] [--warmup 5]`;
+//! prints one JSON object.
+
+#![allow(clippy::print_stdout, clippy::print_stderr)]
+
+use std::time::Instant;
+
+use models::dqn::{AgentShape, DqnConfig, Learner};
+use models::qnet::QNetworkConfig;
+use models::replay::Batch;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn random_batch(rng: &mut ChaCha8Rng, shape: &AgentShape, size: usize) -> Batch {
+    let layers = size * shape.channels * shape.height * shape.width;
+    let mut values = |n: usize| {
+        (0..n)
+            .map(|_| f32::from(rng.random_range(0u8..2) * 255) / 255.0)
+            .collect::<Vec<f32>>()
+    };
+    let (l, nl) = (values(layers), values(layers));
+    let (s, ns) = (values(size * shape.scalars), values(size * shape.scalars));
+    Batch {
+        size,
+        layers: l,
+        scalars: s,
+        actions: (0..size)
+            .map(|_| rng.random_range(0..shape.actions))
+            .collect(),
+        returns: (0..size).map(|_| rng.random_range(-1.0..1.0)).collect(),
+        discounts: vec![0.99f32.powi(3); size],
+        next_layers: nl,
+        next_scalars: ns,
+        weights: vec![1.0; size],
+        leaves: vec![0; size],
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let network: String = arg(&args, "--network", "default".to_owned());
+    let batch_size: usize = arg(&args, "--batch", 32);
+    let steps: usize = arg(&args, "--steps", 60);
+    let warmup: usize = arg(&args, "--warmup", 5);
+    let Some(network_config) = QNetworkConfig::preset(&network) else {
+        eprintln!("unknown --network {network} (default or its)");
+        std::process::exit(2);
+    };
+    let config = DqnConfig {
+        network: network_config,
+        batch_size,
+        // The PyTorch side clips nothing either.
+        gradient_clip_norm: 0.0,
+        ..DqnConfig::default()
+    };
+    let shape = AgentShape {
+        channels: 16,
+        height: 84,
+        width: 84,
+        scalars: 6,
+        actions: 3,
+    };
+    let device = models::cpu_device();
+    let mut learner = match Learner::new(&config, &shape, 0, &device) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("{e}");
+            std::process::exit(1);
+        }
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mut times_ms = Vec::with_capacity(steps);
+    let mut losses = Vec::new();
+    for i in 0..warmup + steps {
+        let batch = random_batch(&mut rng, &shape, batch_size);
+        let start = Instant::now();
+        let (loss, _, _) = learner.learn(batch);
+        let elapsed = start.elapsed().as_secs_f64() * 1e3;
+        if i >= warmup {
+            times_ms.push(elapsed);
+            losses.push(loss);
+        }
+    }
+    let mut sorted = times_ms.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = if sorted.is_empty() {
+        f64::NAN
+    } else {
+        sorted[sorted.len() / 2]
+    };
+    let threads = rayon::current_num_threads();
+    println!(
+        "{{\"framework\": \"burn 0.22.1 flex\", \"network\": \"{network}\", \"batch\": {batch_size}, \"threads\": {threads}, \
+         \"steps\": {steps}, \"median_ms\": {median:.3}, \"times_ms\": {times_ms:?}, \"last_loss\": {:.6}}}",
+        losses.last().copied().unwrap_or(f64::NAN)
+    );
+}

@@ -1,0 +1,499 @@
+//! The Q-network: convolutions over the bird's-eye layers, a small MLP over the scalar
+//! inputs (speed, target speed, aggressiveness, last action), merged into fully connected
+//! layers that output one value per action — plain, or split into a state value and action
+//! advantages (dueling, Wang et al. 2016).
+//!
+//! Parameters are drawn from a seeded ChaCha generator with PyTorch's default bounds
+//! (uniform in ±1/√fan_in for weights and biases), not from the backend's global generator,
+//! so the same seed gives the same network on every backend, in any thread, and the PyTorch
+//! comparison in `scripts/bench_qnet.py` starts from the same distribution.
+
+use burn::module::{Module, Param};
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig};
+use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor, TensorData};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sim::{Observation, ObservationSpec};
+
+use crate::packed::scale_layer_byte;
+
+/// One convolution (followed by a ReLU).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConvSpec {
+    /// Output channels.
+    pub channels: usize,
+    /// Square kernel size.
+    pub kernel: usize,
+    pub stride: usize,
+    /// Zero padding on every side.
+    #[serde(default)]
+    pub padding: usize,
+}
+
+/// How the convolution features become a vector.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Pooling {
+    /// Keep every position (the Nature-DQN head).
+    Flatten,
+    /// Average over regions down to `height × width` cells first (the ITS study's network).
+    Average { height: usize, width: usize },
+}
+
+/// The Q-network's architecture; the input and action sizes come from the task at
+/// [`init`](QNetworkConfig::init).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct QNetworkConfig {
+    /// Convolutions over the layer stack, in order (none: the layers are flattened).
+    pub convolutions: Vec<ConvSpec>,
+    pub pooling: Pooling,
+    /// Width of the one-layer MLP over the scalar inputs (0: the scalars join the merge as they are).
+    pub scalar_hidden: usize,
+    /// Widths of the fully connected layers after the merge.
+    pub hidden: Vec<usize>,
+    /// Separate state-value and advantage heads: Q = V + A − mean(A).
+    pub dueling: bool,
+}
+
+impl Default for QNetworkConfig {
+    /// The Nature-DQN convolutions (32 8×8/4, 64 4×4/2, 64 3×3/1), a 64-wide scalar MLP and
+    /// one 256-wide hidden layer.
+    fn default() -> Self {
+        QNetworkConfig {
+            convolutions: vec![
+                ConvSpec {
+                    channels: 32,
+                    kernel: 8,
+                    stride: 4,
+                    padding: 0,
+                },
+                ConvSpec {
+                    channels: 64,
+                    kernel: 4,
+                    stride: 2,
+                    padding: 0,
+                },
+                ConvSpec {
+                    channels: 64,
+                    kernel: 3,
+                    stride: 1,
+                    padding: 0,
+                },
+            ],
+            pooling: Pooling::Flatten,
+            scalar_hidden: 64,
+            hidden: vec![256],
+            dueling: false,
+        }
+    }
+}
+
+impl QNetworkConfig {
+    /// The ITS study's network: three convolutions, an average pool, and the speed (here:
+    /// all scalar inputs) joined before the fully connected layers.
+    pub fn its() -> Self {
+        QNetworkConfig {
+            convolutions: vec![
+                ConvSpec {
+                    channels: 32,
+                    kernel: 8,
+                    stride: 4,
+                    padding: 0,
+                },
+                ConvSpec {
+                    channels: 64,
+                    kernel: 4,
+                    stride: 2,
+                    padding: 0,
+                },
+                ConvSpec {
+                    channels: 64,
+                    kernel: 3,
+                    stride: 1,
+                    padding: 0,
+                },
+            ],
+            pooling: Pooling::Average {
+                height: 2,
+                width: 2,
+            },
+            scalar_hidden: 0,
+            hidden: vec![256],
+            dueling: false,
+        }
+    }
+
+    /// A named preset: `default` or `its`.
+    pub fn preset(name: &str) -> Option<Self> {
+        match name {
+            "default" | "nature" => Some(Self::default()),
+            "its" => Some(Self::its()),
+            _ => None,
+        }
+    }
+
+    /// `(channels, height, width)` after the convolutions, or an error naming the layer that
+    /// no longer fits.
+    pub fn conv_output(&self, spec: &ObservationSpec) -> Result<(usize, usize, usize), String> {
+        let (mut c, mut h, mut w) = (spec.channels, spec.height, spec.width);
+        for (i, conv) in self.convolutions.iter().enumerate() {
+            if conv.channels == 0 || conv.kernel == 0 || conv.stride == 0 {
+                return Err(format!(
+                    "convolution {i}: channels, kernel and stride must be positive"
+                ));
+            }
+            let (ph, pw) = (h + 2 * conv.padding, w + 2 * conv.padding);
+            if ph < conv.kernel || pw < conv.kernel {
+                return Err(format!(
+                    "convolution {i}: a {k}×{k} kernel does not fit a {h}×{w} input",
+                    k = conv.kernel
+                ));
+            }
+            (c, h, w) = (
+                conv.channels,
+                (ph - conv.kernel) / conv.stride + 1,
+                (pw - conv.kernel) / conv.stride + 1,
+            );
+        }
+        Ok((c, h, w))
+    }
+
+    /// Length of the vector the convolutions hand to the merge.
+    pub fn conv_features(&self, spec: &ObservationSpec) -> Result<usize, String> {
+        let (c, h, w) = self.conv_output(spec)?;
+        Ok(match self.pooling {
+            Pooling::Flatten => c * h * w,
+            Pooling::Average { height, width } => c * height * width,
+        })
+    }
+
+    /// Builds the network for `spec` and `actions`, its parameters drawn from `seed`.
+    pub fn init(
+        &self,
+        spec: &ObservationSpec,
+        actions: usize,
+        seed: u64,
+        device: &Device,
+    ) -> Result<QNetwork, String> {
+        if actions == 0 {
+            return Err("the task has no actions".into());
+        }
+        if let Pooling::Average { height, width } = self.pooling
+            && (height == 0 || width == 0)
+        {
+            return Err("pooling.height and pooling.width must be positive".into());
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut in_channels = spec.channels;
+        let mut convolutions = Vec::with_capacity(self.convolutions.len());
+        for conv in &self.convolutions {
+            convolutions.push(seeded_conv(in_channels, conv, &mut rng, device));
+            in_channels = conv.channels;
+        }
+        let pool = match self.pooling {
+            Pooling::Average { height, width } if !self.convolutions.is_empty() => {
+                Some(AdaptiveAvgPool2dConfig::new([height, width]).init())
+            }
+            _ => None,
+        };
+        let conv_features = if self.convolutions.is_empty() {
+            spec.layer_len()
+        } else {
+            self.conv_features(spec)?
+        };
+        let scalar_layer = (self.scalar_hidden > 0 && spec.scalars > 0)
+            .then(|| seeded_linear(spec.scalars, self.scalar_hidden, &mut rng, device));
+        let scalar_features = if scalar_layer.is_some() {
+            self.scalar_hidden
+        } else {
+            spec.scalars
+        };
+        let mut width = conv_features + scalar_features;
+        if width == 0 {
+            return Err("the network has no inputs (no layers and no scalars)".into());
+        }
+        let mut hidden = Vec::with_capacity(self.hidden.len());
+        for &h in &self.hidden {
+            if h == 0 {
+                return Err("hidden layer widths must be positive".into());
+            }
+            hidden.push(seeded_linear(width, h, &mut rng, device));
+            width = h;
+        }
+        let head = seeded_linear(width, actions, &mut rng, device);
+        let value = self
+            .dueling
+            .then(|| seeded_linear(width, 1, &mut rng, device));
+        Ok(QNetwork {
+            convolutions,
+            pool,
+            scalar_layer,
+            hidden,
+            head,
+            value,
+        })
+    }
+}
+
+/// See the module docs. Built by [`QNetworkConfig::init`].
+#[derive(Module, Debug)]
+pub struct QNetwork {
+    convolutions: Vec<Conv2d>,
+    pool: Option<AdaptiveAvgPool2d>,
+    scalar_layer: Option<Linear>,
+    hidden: Vec<Linear>,
+    /// Q-values, or the advantages of a dueling network.
+    head: Linear,
+    /// The state value of a dueling network.
+    value: Option<Linear>,
+}
+
+impl QNetwork {
+    /// Q-values of a batch.
+    ///
+    /// - `layers`: `[batch, channels, height, width]`, the `u8` layers scaled to [0, 1]
+    ///   (see [`observations_to_tensors`]);
+    /// - `scalars`: `[batch, scalars]`;
+    /// - returns `[batch, actions]`.
+    pub fn forward(&self, layers: Tensor<4>, scalars: Tensor<2>) -> Tensor<2> {
+        let visual = if self.convolutions.is_empty() {
+            layers.flatten::<2>(1, 3)
+        } else {
+            let mut x = layers;
+            for conv in &self.convolutions {
+                x = relu(conv.forward(x));
+            }
+            if let Some(pool) = &self.pool {
+                x = pool.forward(x);
+            }
+            x.flatten::<2>(1, 3)
+        };
+        let scalar = match &self.scalar_layer {
+            Some(layer) => relu(layer.forward(scalars)),
+            None => scalars,
+        };
+        let mut x = Tensor::cat(vec![visual, scalar], 1);
+        for layer in &self.hidden {
+            x = relu(layer.forward(x));
+        }
+        let head = self.head.forward(x.clone());
+        match &self.value {
+            None => head,
+            Some(value) => {
+                let advantage_mean = head.clone().mean_dim(1);
+                value.forward(x) + head - advantage_mean
+            }
+        }
+    }
+}
+
+/// A batch of observations as network inputs: layers `[batch, channels, height, width]`
+/// scaled to [0, 1], and scalars `[batch, scalars]`.
+pub fn observations_to_tensors(
+    observations: &[&Observation],
+    spec: &ObservationSpec,
+    device: &Device,
+) -> (Tensor<4>, Tensor<2>) {
+    let b = observations.len();
+    let mut layers = Vec::with_capacity(b * spec.layer_len());
+    let mut scalars = Vec::with_capacity(b * spec.scalars);
+    for obs in observations {
+        layers.extend(obs.layers.iter().map(|&v| scale_layer_byte(v)));
+        scalars.extend_from_slice(&obs.scalars);
+    }
+    batch_tensors(layers, scalars, b, spec, device)
+}
+
+/// Row-major `f32` batches (as the replay buffer samples them) as network inputs.
+pub fn batch_tensors(
+    layers: Vec<f32>,
+    scalars: Vec<f32>,
+    batch: usize,
+    spec: &ObservationSpec,
+    device: &Device,
+) -> (Tensor<4>, Tensor<2>) {
+    let layers = Tensor::from_data(
+        TensorData::new(layers, [batch, spec.channels, spec.height, spec.width]),
+        device,
+    );
+    let scalars = Tensor::from_data(TensorData::new(scalars, [batch, spec.scalars]), device);
+    (layers, scalars)
+}
+
+/// A tensor's values, row-major (empty if the tensor is not `f32`).
+pub fn tensor_values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().unwrap_or_default()
+}
+
+/// Uniform values in ±`bound`.
+fn uniform(len: usize, bound: f32, rng: &mut ChaCha8Rng) -> Vec<f32> {
+    (0..len).map(|_| rng.random_range(-bound..bound)).collect()
+}
+
+/// A linear layer with PyTorch's default initialisation (±1/√fan_in) from `rng`.
+fn seeded_linear(inputs: usize, outputs: usize, rng: &mut ChaCha8Rng, device: &Device) -> Linear {
+    let mut layer = LinearConfig::new(inputs, outputs)
+        .with_initializer(Initializer::Zeros)
+        .init(device);
+    let bound = 1.0 / (inputs as f32).sqrt();
+    layer.weight = Param::from_data(
+        TensorData::new(uniform(inputs * outputs, bound, rng), [inputs, outputs]),
+        device,
+    );
+    layer.bias = Some(Param::from_data(
+        TensorData::new(uniform(outputs, bound, rng), [outputs]),
+        device,
+    ));
+    layer
+}
+
+/// A convolution with PyTorch's default initialisation (±1/√(in·k·k)) from `rng`.
+fn seeded_conv(inputs: usize, conv: &ConvSpec, rng: &mut ChaCha8Rng, device: &Device) -> Conv2d {
+    let k = conv.kernel;
+    let mut layer = Conv2dConfig::new([inputs, conv.channels], [k, k])
+        .with_stride([conv.stride, conv.stride])
+        .with_padding(PaddingConfig2d::Explicit(
+            conv.padding,
+            conv.padding,
+            conv.padding,
+            conv.padding,
+        ))
+        .with_initializer(Initializer::Zeros)
+        .init(device);
+    let fan_in = inputs * k * k;
+    let bound = 1.0 / (fan_in as f32).sqrt();
+    layer.weight = Param::from_data(
+        TensorData::new(
+            uniform(conv.channels * fan_in, bound, rng),
+            [conv.channels, inputs, k, k],
+        ),
+        device,
+    );
+    layer.bias = Some(Param::from_data(
+        TensorData::new(uniform(conv.channels, bound, rng), [conv.channels]),
+        device,
+    ));
+    layer
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec() -> ObservationSpec {
+        ObservationSpec {
+            channels: 16,
+            height: 84,
+            width: 84,
+            scalars: 6,
+        }
+    }
+
+    fn q_values(net: &QNetwork, batch: usize, device: &Device) -> Vec<f32> {
+        let s = spec();
+        let layers: Vec<f32> = (0..batch * s.layer_len())
+            .map(|i| (i % 7) as f32 / 7.0)
+            .collect();
+        let scalars: Vec<f32> = (0..batch * s.scalars)
+            .map(|i| (i % 3) as f32 - 1.0)
+            .collect();
+        let (l, sc) = batch_tensors(layers, scalars, batch, &s, device);
+        let q = net.forward(l, sc);
+        assert_eq!(q.dims(), [batch, 3]);
+        tensor_values(q)
+    }
+
+    #[test]
+    fn output_shapes_of_the_presets() -> Result<(), String> {
+        let device = Device::flex();
+        let s = spec();
+        // Nature-DQN: 84 → 20 → 9 → 7.
+        assert_eq!(QNetworkConfig::default().conv_output(&s)?, (64, 7, 7));
+        assert_eq!(QNetworkConfig::default().conv_features(&s)?, 3136);
+        assert_eq!(QNetworkConfig::its().conv_features(&s)?, 256);
+        for config in [
+            QNetworkConfig::default(),
+            QNetworkConfig::its(),
+            QNetworkConfig {
+                dueling: true,
+                ..QNetworkConfig::default()
+            },
+            QNetworkConfig {
+                convolutions: vec![],
+                scalar_hidden: 0,
+                ..QNetworkConfig::default()
+            },
+        ] {
+            let net = config.init(&s, 3, 1, &device)?;
+            let q = q_values(&net, 2, &device);
+            assert_eq!(q.len(), 6);
+            assert!(q.iter().all(|v| v.is_finite()));
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn same_seed_same_network_other_seed_other_network() -> Result<(), String> {
+        let device = Device::flex();
+        let config = QNetworkConfig::its();
+        let a = q_values(&config.init(&spec(), 3, 5, &device)?, 1, &device);
+        let b = q_values(&config.init(&spec(), 3, 5, &device)?, 1, &device);
+        let c = q_values(&config.init(&spec(), 3, 6, &device)?, 1, &device);
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        Ok(())
+    }
+
+    #[test]
+    fn dueling_q_values_are_value_plus_centred_advantages() -> Result<(), String> {
+        let device = Device::flex();
+        let s = ObservationSpec {
+            channels: 0,
+            height: 0,
+            width: 0,
+            scalars: 2,
+        };
+        let config = QNetworkConfig {
+            convolutions: vec![],
+            scalar_hidden: 0,
+            hidden: vec![],
+            dueling: true,
+            ..QNetworkConfig::default()
+        };
+        let net = config.init(&s, 3, 9, &device)?;
+        let (layers, scalars) = batch_tensors(vec![], vec![0.5, -1.0], 1, &s, &device);
+        let q = tensor_values(net.forward(layers, scalars.clone()));
+        let advantages = tensor_values(net.head.forward(scalars.clone()));
+        let value = net
+            .value
+            .as_ref()
+            .map(|v| tensor_values(v.forward(scalars)));
+        let value = value.ok_or("dueling network without a value head")?[0];
+        let mean = advantages.iter().sum::<f32>() / 3.0;
+        for (q, a) in q.iter().zip(&advantages) {
+            assert!((q - (value + a - mean)).abs() < 1e-5);
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn kernels_that_do_not_fit_are_reported() {
+        let s = ObservationSpec {
+            channels: 4,
+            height: 10,
+            width: 10,
+            scalars: 1,
+        };
+        let err = QNetworkConfig::default()
+            .conv_output(&s)
+            .err()
+            .unwrap_or_default();
+        assert!(err.contains("convolution 1"), "{err}");
+    }
+}

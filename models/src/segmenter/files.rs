@@ -1,0 +1,122 @@
+//! Model files: a folder with the burn record, the config and a safetensors export.
+//!
+//! ```text
+//! <model>/
+//!   model.json           PspNetConfig (burn Config JSON)
+//!   model.bpk            burn record (burnpack): parameters and batch-norm statistics
+//!   model.safetensors    the same tensors under PyTorch names (BatchNorm weight / bias),
+//!                        loadable by scripts/segmenter_reference.py's PspNet
+//! ```
+
+use std::path::Path;
+
+use burn::config::Config;
+use burn::module::Module;
+use burn::store::{
+    BurnToPyTorchAdapter, ModuleRecord, ModuleSnapshot, PyTorchToBurnAdapter, SafetensorsStore,
+};
+use burn::tensor::Device;
+
+use super::error::{Result, SegmenterError};
+use super::model::{PspNet, PspNetConfig};
+
+pub const MODEL_CONFIG_FILE: &str = "model.json";
+pub const MODEL_RECORD_FILE: &str = "model.bpk";
+pub const MODEL_SAFETENSORS_FILE: &str = "model.safetensors";
+
+/// Writes `file` by writing a temporary sibling and renaming it, so a kill never leaves a
+/// half-written file under the final name.
+pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    write(&tmp)?;
+    std::fs::rename(&tmp, path).map_err(|e| SegmenterError::io(path, e))
+}
+
+/// Writes a model folder's three files (the folder must exist).
+pub fn save_model(dir: &Path, model: &PspNet, config: &PspNetConfig) -> Result<()> {
+    let config_path = dir.join(MODEL_CONFIG_FILE);
+    write_atomic(&config_path, |tmp| {
+        config.save(tmp).map_err(|e| SegmenterError::io(tmp, e))
+    })?;
+    save_record(&dir.join(MODEL_RECORD_FILE), model)?;
+    export_safetensors(&dir.join(MODEL_SAFETENSORS_FILE), model)
+}
+
+/// Writes the burn record of `model`.
+pub fn save_record<M: Module>(path: &Path, model: &M) -> Result<()> {
+    write_atomic(path, |tmp| {
+        model
+            .clone()
+            .into_record()
+            .save(tmp)
+            .map_err(|e| SegmenterError::invalid(tmp, format!("cannot write the record: {e}")))
+    })
+}
+
+/// Loads a burn record into `model` (which must have the record's architecture).
+pub fn load_record<M: Module>(path: &Path, model: M) -> Result<M> {
+    let record = ModuleRecord::load(path)
+        .map_err(|e| SegmenterError::invalid(path, format!("not a readable burn record: {e}")))?;
+    model
+        .try_load_record(record)
+        .map_err(|e| SegmenterError::invalid(path, format!("does not fit the model's config: {e}")))
+}
+
+/// Reads a model folder (see the module docs) onto `device`.
+pub fn load_model(dir: &Path, device: &Device) -> Result<(PspNet, PspNetConfig)> {
+    let config_path = dir.join(MODEL_CONFIG_FILE);
+    if !config_path.is_file() {
+        return Err(SegmenterError::invalid(
+            dir,
+            format!(
+                "is not a model folder (no {MODEL_CONFIG_FILE}; `pipeline segmenter train` writes one)"
+            ),
+        ));
+    }
+    let config = PspNetConfig::load(&config_path).map_err(|e| {
+        SegmenterError::invalid(&config_path, format!("not a segmenter config: {e}"))
+    })?;
+    config
+        .validate()
+        .map_err(|e| SegmenterError::invalid(&config_path, e.to_string()))?;
+    let model = load_record(&dir.join(MODEL_RECORD_FILE), config.init(device)?)?;
+    Ok((model, config))
+}
+
+/// Writes the model's tensors as safetensors under PyTorch names.
+pub fn export_safetensors(path: &Path, model: &PspNet) -> Result<()> {
+    write_atomic(path, |tmp| {
+        // No metadata: burn keeps it in a hash map, whose order would change the bytes.
+        let mut store = SafetensorsStore::from_file(tmp)
+            .with_to_adapter(BurnToPyTorchAdapter)
+            .clear_metadata();
+        model
+            .save_into(&mut store)
+            .map_err(|e| SegmenterError::invalid(tmp, format!("cannot write safetensors: {e}")))
+    })
+}
+
+/// Loads safetensors with PyTorch names (the export above, or
+/// `scripts/segmenter_reference.py`'s weights) into `model`; every tensor must match.
+pub fn import_safetensors(path: &Path, mut model: PspNet) -> Result<PspNet> {
+    let mut store = SafetensorsStore::from_file(path).with_from_adapter(PyTorchToBurnAdapter);
+    let result = model
+        .load_from(&mut store)
+        .map_err(|e| SegmenterError::invalid(path, format!("cannot load safetensors: {e}")))?;
+    if !result.errors.is_empty() || !result.missing.is_empty() || !result.unused.is_empty() {
+        return Err(SegmenterError::invalid(
+            path,
+            format!(
+                "does not fit the model: missing {:?}, unused {:?}, errors {:?}",
+                result.missing.iter().map(|m| &m.0).collect::<Vec<_>>(),
+                result.unused,
+                result.errors
+            ),
+        ));
+    }
+    Ok(model)
+}

@@ -1,0 +1,196 @@
+//! The training loss: pixel-wise cross-entropy with class weights and an ignore label, where
+//! classes a source cannot label are merged into whatever the source labelled.
+//!
+//! The rule for a source that cannot label some classes `U` (its card's `labelable` list
+//! leaves them out; CamVid and Cityscapes never label lane markings, which they call road):
+//! a pixel labelled `y` by that source counts as correct if the network predicts `y` *or*
+//! any class of `U`, because the truth may be a `U` class the source could not name. The
+//! pixel's loss is
+//!
+//! ```text
+//! −log Σ_{c ∈ {y} ∪ U} softmax(logits)_c  =  logsumexp(all logits) − logsumexp(logits of {y} ∪ U)
+//! ```
+//!
+//! which is plain cross-entropy when `U` is empty. The source then neither teaches nor
+//! punishes the `U` classes; data that labels them (generated images) teaches them.
+//! Pixels labelled [`IGNORE`] (255) count nothing. With class weights `w` the loss is
+//! `Σ w[y]·loss / Σ w[y]` over counted pixels, as PyTorch's `CrossEntropyLoss(weight=...)`.
+//! Evaluation applies the same rule to predictions (see `eval`).
+
+use burn::tensor::{Device, Tensor, TensorData};
+
+use datasets::IGNORE;
+
+/// What the loss needs besides the logits, built on the CPU from the labels.
+#[derive(Debug, Clone)]
+pub struct LossTargets {
+    /// `[B, classes, H, W]`: 1 where the class is an acceptable answer for the pixel.
+    pub allowed: Tensor<4>,
+    /// `[B, H, W]`: the class weight of the pixel's label, 0 for ignored pixels.
+    pub weights: Tensor<3>,
+    /// Σ weights, so the mean needs no reduction on the device.
+    pub weight_sum: f64,
+}
+
+/// One label of a batch and the classes its source cannot label.
+#[derive(Debug, Clone, Copy)]
+pub struct LabelRef<'a> {
+    /// `H × W` class ids, row-major.
+    pub pixels: &'a [u8],
+    /// `unlabelable[c]`: the source cannot label class `c`.
+    pub unlabelable: &'a [bool],
+}
+
+impl LossTargets {
+    /// Targets of a batch of `[h, w]` labels (each `h * w` long). `class_weights` has one
+    /// weight per class (all 1 for plain cross-entropy).
+    pub fn new(
+        labels: &[LabelRef<'_>],
+        [h, w]: [usize; 2],
+        class_weights: &[f32],
+        device: &Device,
+    ) -> LossTargets {
+        let classes = class_weights.len();
+        let plane = h * w;
+        let mut allowed = vec![0.0f32; labels.len() * classes * plane];
+        let mut weights = vec![0.0f32; labels.len() * plane];
+        for (b, label) in labels.iter().enumerate() {
+            for (i, &y) in label.pixels.iter().enumerate().take(plane) {
+                let at = |c: usize| (b * classes + c) * plane + i;
+                let y = usize::from(y);
+                if y == usize::from(IGNORE) || y >= classes {
+                    // Ignored: every class allowed, so the pixel's loss is exactly 0.
+                    (0..classes).for_each(|c| allowed[at(c)] = 1.0);
+                    continue;
+                }
+                weights[b * plane + i] = class_weights[y];
+                allowed[at(y)] = 1.0;
+                for c in
+                    (0..classes).filter(|&c| label.unlabelable.get(c).copied().unwrap_or(false))
+                {
+                    allowed[at(c)] = 1.0;
+                }
+            }
+        }
+        let weight_sum = weights.iter().map(|&w| f64::from(w)).sum();
+        LossTargets {
+            allowed: Tensor::from_data(
+                TensorData::new(allowed, [labels.len(), classes, h, w]),
+                device,
+            ),
+            weights: Tensor::from_data(TensorData::new(weights, [labels.len(), h, w]), device),
+            weight_sum,
+        }
+    }
+}
+
+/// The weighted, merged cross-entropy of the module docs:
+/// `logits [B, classes, H, W]` with `targets` -> a scalar `[1]`.
+pub fn segmentation_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> {
+    let max = logits.clone().max_dim(1).detach();
+    let exp = (logits - max).exp();
+    let all = exp.clone().sum_dim(1);
+    // Clamped so an allowed set whose logits underflow gives a large, finite loss.
+    let allowed = (exp * targets.allowed.clone()).sum_dim(1).clamp_min(1e-30);
+    let per_pixel: Tensor<3> = (all.log() - allowed.log()).squeeze_dim(1);
+    let weighted = (per_pixel * targets.weights.clone()).sum();
+    if targets.weight_sum > 0.0 {
+        weighted.div_scalar(targets.weight_sum)
+    } else {
+        weighted.mul_scalar(0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::activation::log_softmax;
+
+    fn device() -> Device {
+        Device::flex()
+    }
+
+    fn scalar(t: Tensor<1>) -> f32 {
+        t.into_data().try_to_vec::<f32>().unwrap_or_default()[0]
+    }
+
+    /// 1 image, 3 classes, 1×4 pixels.
+    fn logits() -> Tensor<4> {
+        let values = vec![
+            2.0, -1.0, 0.5, 0.0, // class 0
+            0.0, 3.0, 0.5, 1.0, // class 1
+            -1.0, 0.0, 0.5, 4.0, // class 2
+        ];
+        Tensor::from_data(TensorData::new(values, [1, 3, 1, 4]), &device())
+    }
+
+    #[test]
+    fn without_masking_it_is_weighted_cross_entropy() {
+        let labels = [0u8, 1, 255, 0];
+        let none = [false; 3];
+        let weights = [1.0f32, 2.0, 1.0];
+        let targets = LossTargets::new(
+            &[LabelRef {
+                pixels: &labels,
+                unlabelable: &none,
+            }],
+            [1, 4],
+            &weights,
+            &device(),
+        );
+        let loss = scalar(segmentation_loss(logits(), &targets));
+        // By hand from log-softmax: pixels 0 (class 0, w 1), 1 (class 1, w 2), 3 (class 0, w 1).
+        let logp = log_softmax(logits(), 1)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap_or_default();
+        let lp = |c: usize, i: usize| logp[c * 4 + i];
+        let expected = -(lp(0, 0) + 2.0 * lp(1, 1) + lp(0, 3)) / 4.0;
+        assert!((loss - expected).abs() < 1e-5, "{loss} vs {expected}");
+    }
+
+    #[test]
+    fn classes_a_source_cannot_label_are_merged_into_the_label() {
+        // Pixel 3 is labelled 0 but the network says class 2 (logit 4): costly normally,
+        // nearly free when the source cannot label class 2.
+        let labels = [255u8, 255, 255, 0];
+        let weights = [1.0f32; 3];
+        let loss_with = |unlabelable: [bool; 3]| {
+            let t = LossTargets::new(
+                &[LabelRef {
+                    pixels: &labels,
+                    unlabelable: &unlabelable,
+                }],
+                [1, 4],
+                &weights,
+                &device(),
+            );
+            scalar(segmentation_loss(logits(), &t))
+        };
+        let plain = loss_with([false; 3]);
+        let merged = loss_with([false, false, true]);
+        let logp = log_softmax(logits(), 1)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap_or_default();
+        let expected_merged = -(logp[3].exp() + logp[8 + 3].exp()).ln();
+        assert!((plain + logp[3]).abs() < 1e-5);
+        assert!(
+            (merged - expected_merged).abs() < 1e-5,
+            "{merged} vs {expected_merged}"
+        );
+        assert!(merged < 0.1 && plain > 3.0);
+        // Nothing counted: zero, not NaN.
+        let all_ignored = [255u8; 4];
+        let t = LossTargets::new(
+            &[LabelRef {
+                pixels: &all_ignored,
+                unlabelable: &[false; 3],
+            }],
+            [1, 4],
+            &weights,
+            &device(),
+        );
+        assert_eq!(scalar(segmentation_loss(logits(), &t)), 0.0);
+    }
+}

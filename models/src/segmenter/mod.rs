@@ -1,0 +1,17 @@
+//! The PSPNet-style segmenter (issue 4): the network ([`model`]), its loss ([`loss`]),
+//! confusion-matrix metrics ([`metrics`]).
+
+pub mod data;
+pub mod error;
+pub mod eval;
+pub mod files;
+pub mod infer;
+pub mod loss;
+pub mod metrics;
+pub mod model;
+pub mod synthetic;
+pub mod train;
+
+pub use error::{Result, SegmenterError};
+pub use metrics::{ConfusionMatrix, MetricsSummary};
+pub use model::{PspNet, PspNetConfig};

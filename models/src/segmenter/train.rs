@@ -1,0 +1,727 @@
+//! Training: Adam over one or several datasets, validation each epoch, checkpoints, resume,
+//! early stopping and a time budget, deterministic under a seed.
+//!
+//! The run folder (the library writes it file by file, each file atomically, so a
+//! `kill -9` leaves the last complete checkpoint):
+//!
+//! ```text
+//! <run>/
+//!   train.json        the TrainingConfig (a resumed run must have the same)
+//!   curves.jsonl      one line per optimiser step and per epoch (CurvePoint)
+//!   checkpoint/       the last epoch: model.bpk, optimizer.bpk, state.json
+//!   best/             the model of the best validation mIoU: a model folder (see files)
+//!                     plus metrics.json
+//! ```
+//!
+//! What makes a run reproducible: the weights come from the seed
+//! ([`PspNetConfig::init_seeded`]), each epoch's item order and each item's augmentation
+//! from (seed, epoch, draw), each step's dropout masks from (seed, step), and burn's flex
+//! backend computes a convolution's output elements independently of the thread that runs
+//! them; so a run and a run resumed from any checkpoint take the same steps. Only the time
+//! budget (`max_minutes`) depends on the machine.
+
+use std::collections::BTreeMap;
+use std::fs::OpenOptions;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use burn::config::Config;
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+use sim::seed::derive_seed;
+
+use super::data::{Augment, Sample, Source, check_sources, epoch_draws, load_batch, resize_sample};
+use super::error::{Result, SegmenterError};
+use super::eval::{Prediction, class_names, evaluate};
+use super::files::{load_record, save_model, save_record, write_atomic};
+use super::infer::normalise;
+use super::loss::{LabelRef, LossTargets, segmentation_loss};
+use super::metrics::MetricsSummary;
+use super::model::{PspNet, PspNetConfig};
+
+pub const TRAIN_CONFIG_FILE: &str = "train.json";
+pub const CURVES_FILE: &str = "curves.jsonl";
+pub const CHECKPOINT_DIR: &str = "checkpoint";
+pub const BEST_DIR: &str = "best";
+pub const STATE_FILE: &str = "state.json";
+pub const OPTIMIZER_FILE: &str = "optimizer.bpk";
+pub const METRICS_FILE: &str = "metrics.json";
+
+/// Seed stage of the dropout masks.
+const STAGE_DROPOUT: u64 = 0x5e6_0003;
+
+/// Everything a training run does, with the thesis's settings as defaults (Adam 1e-4,
+/// batch 8) and a short side of 256 px for 2 CPU cores.
+#[derive(Config, Debug, PartialEq)]
+pub struct TrainingConfig {
+    pub model: PspNetConfig,
+    /// Adam's learning rate (after warm-up, before the poly decay).
+    #[config(default = 1e-4)]
+    pub learning_rate: f64,
+    /// Images per forward pass.
+    #[config(default = 8)]
+    pub batch_size: usize,
+    /// Forward passes whose gradients are summed into one optimiser step.
+    #[config(default = 1)]
+    pub accumulation: usize,
+    #[config(default = 50)]
+    pub epochs: usize,
+    /// Items drawn per epoch [default: the train items of all sources].
+    #[config(default = "None")]
+    pub samples_per_epoch: Option<usize>,
+    /// Poly decay `lr · (1 − step / steps)^power` over the whole run; 0 keeps it constant.
+    #[config(default = 0.0)]
+    pub poly_power: f64,
+    /// Steps of linear warm-up from 0.
+    #[config(default = 0)]
+    pub warmup_steps: usize,
+    /// Short side of the images before the random scale (training and validation).
+    #[config(default = 256)]
+    pub size: u32,
+    /// Side of the square training crops.
+    #[config(default = 256)]
+    pub crop: u32,
+    #[config(default = "[0.75, 1.25]")]
+    pub scale: [f32; 2],
+    #[config(default = true)]
+    pub flip: bool,
+    /// Loss weight of each class [default: all 1].
+    #[config(default = "None")]
+    pub class_weights: Option<Vec<f32>>,
+    /// Weight of the auxiliary head's loss (with `model.aux_head`).
+    #[config(default = 0.4)]
+    pub aux_weight: f64,
+    /// Stop after this many epochs without a better validation mIoU.
+    #[config(default = "None")]
+    pub patience: Option<usize>,
+    /// Stop when the run (all sessions together, validation included) reaches this.
+    #[config(default = "None")]
+    pub max_minutes: Option<f64>,
+    /// Validation images per source each epoch [default: all].
+    #[config(default = "None")]
+    pub val_limit: Option<usize>,
+    /// Validation images logged with prediction and label each epoch.
+    #[config(default = 4)]
+    pub preview_images: usize,
+    #[config(default = 0)]
+    pub seed: u64,
+}
+
+impl TrainingConfig {
+    pub fn validate(&self) -> Result<()> {
+        self.model.validate()?;
+        let bad = |m: String| Err(SegmenterError::Config(m));
+        if self.batch_size == 0 || self.accumulation == 0 || self.epochs == 0 {
+            return bad("batch size, accumulation and epochs must be at least 1".into());
+        }
+        if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
+            return bad(format!(
+                "learning rate must be positive, not {}",
+                self.learning_rate
+            ));
+        }
+        if self.size == 0 || self.crop == 0 {
+            return bad("size and crop must be at least 1 px".into());
+        }
+        if !(self.scale[0] > 0.0 && self.scale[1] >= self.scale[0]) {
+            return bad(format!(
+                "scale must be a range of positive factors, not {:?}",
+                self.scale
+            ));
+        }
+        if let Some(w) = &self.class_weights
+            && (w.len() != self.model.classes || w.iter().any(|&v| !(v.is_finite() && v >= 0.0)))
+        {
+            return bad(format!(
+                "class weights must be {} non-negative numbers, not {w:?}",
+                self.model.classes
+            ));
+        }
+        Ok(())
+    }
+
+    /// Learning rate of optimiser step `step` (0-based) of `total`.
+    pub fn learning_rate_at(&self, step: u64, total: u64) -> f64 {
+        let warm = self.warmup_steps as u64;
+        if step < warm {
+            return self.learning_rate * (step + 1) as f64 / warm as f64;
+        }
+        if self.poly_power > 0.0 && total > 0 {
+            let t = (step as f64 / total as f64).min(1.0);
+            return self.learning_rate * (1.0 - t).powf(self.poly_power);
+        }
+        self.learning_rate
+    }
+}
+
+/// Where a run stands after an epoch (`checkpoint/state.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainState {
+    /// Epochs completed.
+    pub epochs_done: usize,
+    /// Optimiser steps taken.
+    pub step: u64,
+    pub best_miou: f64,
+    pub best_epoch: usize,
+    pub epochs_without_improvement: usize,
+    /// Wall time of all sessions so far.
+    pub seconds: f64,
+    /// Why the run ended, once it has.
+    pub stopped: Option<StopReason>,
+}
+
+/// Why training stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    Epochs,
+    EarlyStopping,
+    TimeBudget,
+}
+
+/// A point of the training curves (one line of `curves.jsonl`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum CurvePoint {
+    Step(StepPoint),
+    Epoch(EpochPoint),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StepPoint {
+    pub step: u64,
+    pub epoch: usize,
+    pub loss: f64,
+    pub learning_rate: f64,
+    pub seconds: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochPoint {
+    /// 1-based: the number of epochs done.
+    pub epoch: usize,
+    pub step: u64,
+    pub train_loss: f64,
+    pub val: MetricsSummary,
+    pub val_per_source: BTreeMap<String, MetricsSummary>,
+    pub best: bool,
+    pub seconds: f64,
+}
+
+/// What the caller hears about while a run goes (the library itself never prints).
+pub trait TrainObserver {
+    /// The curves so far, once, when a run is resumed.
+    fn history(&mut self, _points: &[CurvePoint]) {}
+    fn step(&mut self, _point: &StepPoint) {}
+    /// After validation: the epoch's figures and the preview images.
+    fn epoch(&mut self, _point: &EpochPoint, _previews: &[Prediction]) {}
+    /// Progress within an epoch: (what, done, total).
+    fn progress(&mut self, _what: &str, _done: usize, _total: usize) {}
+}
+
+/// An observer that ignores everything.
+#[derive(Debug, Default)]
+pub struct Quiet;
+
+impl TrainObserver for Quiet {}
+
+/// How a run ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainSummary {
+    pub state: TrainState,
+    /// The best model's folder.
+    pub best_dir: PathBuf,
+    pub resumed_from_epoch: Option<usize>,
+}
+
+/// The datasets of a run.
+#[derive(Debug)]
+pub struct TrainData {
+    pub train: Vec<Source>,
+    pub val: Vec<Source>,
+}
+
+/// Trains into `run_dir` (created if needed), or continues the run there with `resume`.
+pub fn train(
+    run_dir: &Path,
+    config: &TrainingConfig,
+    data: &TrainData,
+    resume: bool,
+    device: &Device,
+    observer: &mut dyn TrainObserver,
+) -> Result<TrainSummary> {
+    config.validate()?;
+    check_sources(&data.train, "train")?;
+    check_sources(&data.val, "validation")?;
+    let mut run = Run::open(run_dir, config, resume)?;
+    let device = device.clone().autodiff();
+    let mut model = config.model.init_seeded(&device, config.seed)?;
+    let mut optimizer: ModuleOptimizer = AdamConfig::new().with_epsilon(1e-8).init();
+    let mut state = TrainState {
+        epochs_done: 0,
+        step: 0,
+        best_miou: f64::NEG_INFINITY,
+        best_epoch: 0,
+        epochs_without_improvement: 0,
+        seconds: 0.0,
+        stopped: None,
+    };
+    let mut resumed_from_epoch = None;
+    if let Some(checkpoint) = run.checkpoint()? {
+        model = load_record(&checkpoint.join(super::files::MODEL_RECORD_FILE), model)?;
+        let optimizer_path = checkpoint.join(OPTIMIZER_FILE);
+        optimizer = optimizer.load(&optimizer_path).map_err(|e| {
+            SegmenterError::invalid(
+                &optimizer_path,
+                format!("not a readable optimizer state: {e}"),
+            )
+        })?;
+        state = read_json(&checkpoint.join(STATE_FILE))?;
+        resumed_from_epoch = Some(state.epochs_done);
+        let history = run.truncate_curves(&state)?;
+        observer.history(&history);
+    }
+    if state.stopped.is_some() && state.epochs_done >= config.epochs {
+        return Ok(run.summary(state, resumed_from_epoch));
+    }
+    state.stopped = None;
+
+    let samples = config
+        .samples_per_epoch
+        .unwrap_or_else(|| data.train.iter().map(|s| s.items.len()).sum());
+    let batches_per_epoch = samples.div_ceil(config.batch_size);
+    let steps_per_epoch = batches_per_epoch.div_ceil(config.accumulation) as u64;
+    let total_steps = steps_per_epoch * config.epochs as u64;
+    let class_weights = config
+        .class_weights
+        .clone()
+        .unwrap_or_else(|| vec![1.0; config.model.classes]);
+    let augment = Augment {
+        size: config.size,
+        crop: config.crop,
+        scale: config.scale,
+        flip: config.flip,
+    };
+    let session_start = Instant::now();
+    let seconds_before = state.seconds;
+    let elapsed = || seconds_before + session_start.elapsed().as_secs_f64();
+    let over_budget = |s: f64| config.max_minutes.is_some_and(|m| s >= m * 60.0);
+
+    while state.epochs_done < config.epochs {
+        let epoch = state.epochs_done;
+        let draws = epoch_draws(&data.train, samples, config.seed, epoch as u64);
+        let mut accumulator = GradientsAccumulator::new();
+        let mut pending = 0;
+        let (mut loss_sum, mut loss_count, mut step_loss) = (0.0, 0usize, 0.0);
+        let mut out_of_time = false;
+        for (b, chunk) in draws.chunks(config.batch_size).enumerate() {
+            if over_budget(elapsed()) {
+                out_of_time = true;
+                break;
+            }
+            let first = b * config.batch_size;
+            let batch = load_batch(
+                &data.train,
+                chunk,
+                first,
+                &augment,
+                config.seed,
+                epoch as u64,
+            )?;
+            let micro = (epoch * batches_per_epoch + b) as u64;
+            let loss = batch_loss(
+                &model,
+                config,
+                &data.train,
+                &batch,
+                &class_weights,
+                micro,
+                &device,
+            );
+            let value = f64::from(loss.clone().into_scalar::<f32>());
+            let loss = loss.div_scalar(config.accumulation as f64);
+            let grads = GradientsParams::from_grads(loss.backward(), &model);
+            accumulator.accumulate(&model, grads);
+            pending += 1;
+            step_loss += value;
+            loss_sum += value;
+            loss_count += 1;
+            observer.progress("train", b + 1, batches_per_epoch);
+            let last = b + 1 == batches_per_epoch;
+            if pending == config.accumulation || last {
+                let lr = config.learning_rate_at(state.step, total_steps);
+                model = optimizer.step(lr, model, accumulator.grads());
+                state.step += 1;
+                let point = StepPoint {
+                    step: state.step,
+                    epoch: epoch + 1,
+                    loss: step_loss / pending as f64,
+                    learning_rate: lr,
+                    seconds: elapsed(),
+                };
+                run.append(&CurvePoint::Step(point.clone()))?;
+                observer.step(&point);
+                pending = 0;
+                step_loss = 0.0;
+            }
+        }
+        if pending > 0 {
+            // The time budget cut the accumulation short: use what was gathered.
+            let lr = config.learning_rate_at(state.step, total_steps);
+            model = optimizer.step(lr, model, accumulator.grads());
+            state.step += 1;
+        }
+
+        let valid = model.valid();
+        let previews_wanted = config.preview_images;
+        let mut previews = Vec::new();
+        let evaluation = evaluate(
+            &valid,
+            &config.model,
+            &data.val,
+            Some(config.size),
+            config.val_limit,
+            &device.clone().inner(),
+            |done, total, prediction| {
+                if previews.len() < previews_wanted {
+                    previews.push(preview(prediction, config.size));
+                }
+                observer.progress("validate", done, total);
+            },
+        )?;
+        let names = class_names(config.model.classes);
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        let val = evaluation.overall.summary(&names);
+        let improved = val.miou > state.best_miou;
+        state.epochs_done = epoch + 1;
+        if improved {
+            state.best_miou = val.miou;
+            state.best_epoch = state.epochs_done;
+            state.epochs_without_improvement = 0;
+        } else {
+            state.epochs_without_improvement += 1;
+        }
+        let point = EpochPoint {
+            epoch: state.epochs_done,
+            step: state.step,
+            train_loss: if loss_count > 0 {
+                loss_sum / loss_count as f64
+            } else {
+                f64::NAN
+            },
+            val_per_source: evaluation
+                .per_source
+                .iter()
+                .map(|(name, m)| (name.clone(), m.summary(&names)))
+                .collect(),
+            val,
+            best: improved,
+            seconds: elapsed(),
+        };
+        state.stopped = if out_of_time || over_budget(elapsed()) {
+            Some(StopReason::TimeBudget)
+        } else if config
+            .patience
+            .is_some_and(|p| state.epochs_without_improvement >= p)
+        {
+            Some(StopReason::EarlyStopping)
+        } else if state.epochs_done >= config.epochs {
+            Some(StopReason::Epochs)
+        } else {
+            None
+        };
+        state.seconds = elapsed();
+        if improved {
+            run.save_best(&valid, &config.model, &point)?;
+        }
+        run.append(&CurvePoint::Epoch(point.clone()))?;
+        run.save_checkpoint(&model, &optimizer, &state)?;
+        observer.epoch(&point, &previews);
+        if state.stopped.is_some() {
+            break;
+        }
+    }
+    Ok(run.summary(state, resumed_from_epoch))
+}
+
+/// The loss of one batch: `[B, 3, crop, crop]` images through the network, the merged
+/// cross-entropy of the main head plus `aux_weight` times the aux head's.
+fn batch_loss(
+    model: &PspNet,
+    config: &TrainingConfig,
+    sources: &[Source],
+    batch: &[(usize, Sample)],
+    class_weights: &[f32],
+    micro_step: u64,
+    device: &Device,
+) -> Tensor<1> {
+    let images: Vec<&image::RgbImage> = batch.iter().map(|(_, s)| &s.image).collect();
+    let input = normalise(&images, &config.model, device);
+    let labels: Vec<LabelRef<'_>> = batch
+        .iter()
+        .map(|(source, s)| LabelRef {
+            pixels: s.label.as_raw(),
+            unlabelable: &sources[*source].unlabelable,
+        })
+        .collect();
+    let side = config.crop as usize;
+    let targets = LossTargets::new(&labels, [side, side], class_weights, device);
+    let heads = model.forward_train(input, derive_seed(config.seed, STAGE_DROPOUT, micro_step));
+    let loss = segmentation_loss(heads.logits, &targets);
+    match heads.aux {
+        Some(aux) => loss + segmentation_loss(aux, &targets).mul_scalar(config.aux_weight),
+        None => loss,
+    }
+}
+
+/// A preview at the training resolution (so the recording stays small).
+fn preview(p: &Prediction, short: u32) -> Prediction {
+    let sample = Sample {
+        id: p.sample.id.clone(),
+        image: p.sample.image.clone(),
+        label: p.prediction.clone(),
+    };
+    let predicted = resize_sample(&sample, short);
+    let truth = resize_sample(&p.sample, short);
+    Prediction {
+        sample: truth,
+        prediction: predicted.label,
+    }
+}
+
+/// The run folder.
+struct Run {
+    dir: PathBuf,
+}
+
+impl Run {
+    /// Starts a run in `dir`, or reopens it for `resume` (the config must be the same).
+    fn open(dir: &Path, config: &TrainingConfig, resume: bool) -> Result<Run> {
+        std::fs::create_dir_all(dir).map_err(|e| SegmenterError::io(dir, e))?;
+        let run = Run {
+            dir: dir.to_path_buf(),
+        };
+        let config_path = dir.join(TRAIN_CONFIG_FILE);
+        if resume {
+            if !config_path.is_file() {
+                return Err(SegmenterError::invalid(
+                    dir,
+                    "has no training run to resume (no train.json)",
+                ));
+            }
+            let before = TrainingConfig::load(&config_path).map_err(|e| {
+                SegmenterError::invalid(&config_path, format!("not a training config: {e}"))
+            })?;
+            if !same_run(&before, config) {
+                return Err(SegmenterError::invalid(
+                    &config_path,
+                    "the run was started with other settings; resume it with the same ones (only epochs, patience and max-minutes may change)",
+                ));
+            }
+        } else if config_path.exists() {
+            return Err(SegmenterError::invalid(
+                dir,
+                "holds a training run; give --resume to continue it, or a new folder",
+            ));
+        }
+        write_atomic(&config_path, |tmp| {
+            config.save(tmp).map_err(|e| SegmenterError::io(tmp, e))
+        })?;
+        Ok(run)
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// The last complete checkpoint folder, if there is one.
+    fn checkpoint(&self) -> Result<Option<PathBuf>> {
+        let dir = self.path(CHECKPOINT_DIR);
+        recover_dir(&dir)?;
+        Ok(dir.join(STATE_FILE).is_file().then_some(dir))
+    }
+
+    fn append(&mut self, point: &CurvePoint) -> Result<()> {
+        let path = self.path(CURVES_FILE);
+        let line = serde_json::to_string(point)
+            .map_err(|e| SegmenterError::invalid(&path, format!("cannot encode: {e}")))?;
+        let mut file = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(|e| SegmenterError::io(&path, e))?;
+        writeln!(file, "{line}").map_err(|e| SegmenterError::io(&path, e))
+    }
+
+    /// Drops the curve points after the checkpoint (work a kill lost; it is done again)
+    /// and returns the rest.
+    fn truncate_curves(&self, state: &TrainState) -> Result<Vec<CurvePoint>> {
+        let path = self.path(CURVES_FILE);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => String::new(),
+            Err(e) => return Err(SegmenterError::io(&path, e)),
+        };
+        // A kill may cut the last line short: it is not a point.
+        let kept: Vec<CurvePoint> = text
+            .lines()
+            .filter_map(|line| serde_json::from_str::<CurvePoint>(line).ok())
+            .filter(|p| match p {
+                CurvePoint::Step(s) => s.step <= state.step,
+                CurvePoint::Epoch(e) => e.epoch <= state.epochs_done,
+            })
+            .collect();
+        let mut out = String::new();
+        for p in &kept {
+            out.push_str(&serde_json::to_string(p).unwrap_or_default());
+            out.push('\n');
+        }
+        write_atomic(&path, |tmp| {
+            std::fs::write(tmp, &out).map_err(|e| SegmenterError::io(tmp, e))
+        })?;
+        Ok(kept)
+    }
+
+    fn save_best(&self, model: &PspNet, config: &PspNetConfig, point: &EpochPoint) -> Result<()> {
+        replace_dir(&self.path(BEST_DIR), |dir| {
+            save_model(dir, model, config)?;
+            write_json(&dir.join(METRICS_FILE), point)
+        })
+    }
+
+    fn save_checkpoint(
+        &self,
+        model: &PspNet,
+        optimizer: &ModuleOptimizer,
+        state: &TrainState,
+    ) -> Result<()> {
+        replace_dir(&self.path(CHECKPOINT_DIR), |dir| {
+            save_record(&dir.join(super::files::MODEL_RECORD_FILE), model)?;
+            let opt_path = dir.join(OPTIMIZER_FILE);
+            optimizer.save(&opt_path).map_err(|e| {
+                SegmenterError::invalid(&opt_path, format!("cannot write the optimizer state: {e}"))
+            })?;
+            write_json(&dir.join(STATE_FILE), state)
+        })
+    }
+
+    fn summary(&self, state: TrainState, resumed_from_epoch: Option<usize>) -> TrainSummary {
+        TrainSummary {
+            state,
+            best_dir: self.path(BEST_DIR),
+            resumed_from_epoch,
+        }
+    }
+}
+
+/// Whether a resumed run may continue under `new`: everything that shapes the steps must
+/// be the same; how long to go on may change.
+fn same_run(old: &TrainingConfig, new: &TrainingConfig) -> bool {
+    let mut old = old.clone();
+    old.epochs = new.epochs;
+    old.patience = new.patience;
+    old.max_minutes = new.max_minutes;
+    old == *new
+}
+
+/// Writes a folder by filling a temporary sibling and swapping it in: `dest` → `.old`,
+/// temporary → `dest`, `.old` removed. A kill between the two renames leaves `.old`, which
+/// [`recover_dir`] puts back.
+pub fn replace_dir(dest: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let (tmp, old) = sibling_names(dest);
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| SegmenterError::io(&tmp, e))?;
+    }
+    std::fs::create_dir_all(&tmp).map_err(|e| SegmenterError::io(&tmp, e))?;
+    fill(&tmp)?;
+    recover_dir(dest)?;
+    if dest.exists() {
+        std::fs::rename(dest, &old).map_err(|e| SegmenterError::io(dest, e))?;
+    }
+    std::fs::rename(&tmp, dest).map_err(|e| SegmenterError::io(dest, e))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).map_err(|e| SegmenterError::io(&old, e))?;
+    }
+    Ok(())
+}
+
+/// Puts back a folder [`replace_dir`] was swapping when it was killed.
+pub fn recover_dir(dest: &Path) -> Result<()> {
+    let (_, old) = sibling_names(dest);
+    if !dest.exists() && old.exists() {
+        std::fs::rename(&old, dest).map_err(|e| SegmenterError::io(dest, e))?;
+    }
+    Ok(())
+}
+
+fn sibling_names(dest: &Path) -> (PathBuf, PathBuf) {
+    let name = dest
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    (
+        dest.with_file_name(format!(".{name}.tmp")),
+        dest.with_file_name(format!(".{name}.old")),
+    )
+}
+
+fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let mut text = serde_json::to_string_pretty(value)
+        .map_err(|e| SegmenterError::invalid(path, format!("cannot encode: {e}")))?;
+    text.push('\n');
+    write_atomic(path, |tmp| {
+        std::fs::write(tmp, &text).map_err(|e| SegmenterError::io(tmp, e))
+    })
+}
+
+fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).map_err(|e| SegmenterError::io(path, e))?;
+    serde_json::from_str(&text)
+        .map_err(|e| SegmenterError::invalid(path, format!("unreadable: {e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn learning_rate_warms_up_then_decays() {
+        let c = TrainingConfig::new(PspNetConfig::new())
+            .with_learning_rate(1.0)
+            .with_warmup_steps(4)
+            .with_poly_power(1.0);
+        assert_eq!(c.learning_rate_at(0, 100), 0.25);
+        assert_eq!(c.learning_rate_at(3, 100), 1.0);
+        assert!((c.learning_rate_at(50, 100) - 0.5).abs() < 1e-12);
+        let constant = TrainingConfig::new(PspNetConfig::new());
+        assert_eq!(constant.learning_rate_at(99, 100), 1e-4);
+    }
+
+    #[test]
+    fn replaced_folders_survive_a_kill_between_renames() -> Result<()> {
+        let root = tempfile::tempdir().map_err(|e| SegmenterError::io(Path::new("tmp"), e))?;
+        let dest = root.path().join("checkpoint");
+        replace_dir(&dest, |d| {
+            std::fs::write(d.join("a"), "1").map_err(|e| SegmenterError::io(d, e))
+        })?;
+        replace_dir(&dest, |d| {
+            std::fs::write(d.join("a"), "2").map_err(|e| SegmenterError::io(d, e))
+        })?;
+        assert_eq!(
+            std::fs::read_to_string(dest.join("a")).ok().as_deref(),
+            Some("2")
+        );
+        // As if killed after `dest -> .old`: recovery brings the old one back.
+        let (_, old) = sibling_names(&dest);
+        std::fs::rename(&dest, &old).map_err(|e| SegmenterError::io(&dest, e))?;
+        recover_dir(&dest)?;
+        assert_eq!(
+            std::fs::read_to_string(dest.join("a")).ok().as_deref(),
+            Some("2")
+        );
+        Ok(())
+    }
+}

@@ -1,0 +1,194 @@
+//! `pipeline agent train | eval`: DQN-family agents on the driving tasks.
+//!
+//! ```text
+//! pipeline agent train --task roundabout-insertion --map MAP --out DIR [--steps N] [--traffic LEVEL] [--resume]
+//! pipeline agent eval  --agent DIR --map MAP [--episodes N] [--out DIR]
+//! ```
+//!
+//! `MAP` is a map folder or file written by `pipeline map import`, or an OSM / Lanelet2
+//! file imported on the fly with the default car profile. The hyper-parameters come from
+//! the `[agent.dqn]` table of `--config` (see [`models::dqn::DqnConfig`]); the task's from
+//! `[agent.task]` (see [`sim::tasks::InsertionConfig`]).
+
+mod episodes;
+mod eval;
+mod train;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::Result;
+use clap::{Args, Subcommand, ValueEnum};
+use maps::Map;
+use serde::{Deserialize, Serialize};
+use sim::tasks::{InsertionConfig, InsertionSetup};
+use sim::world::TrafficLevel;
+
+use super::Context;
+use super::map::load_map;
+use crate::error::{CliError, FileRole, map_error};
+
+pub fn run(ctx: &Context<'_>, command: &AgentCommand) -> Result<()> {
+    match command {
+        AgentCommand::Train(args) => train::train(ctx, args),
+        AgentCommand::Eval(args) => eval::eval(ctx, args),
+    }
+}
+
+#[derive(Debug, Subcommand)]
+pub enum AgentCommand {
+    /// Train a DQN / Double DQN agent on a task (checkpoints as it goes; --resume after a kill).
+    Train(TrainArgs),
+    /// Evaluate an agent next to the baselines: eval.json and a markdown table per condition.
+    Eval(EvalArgs),
+}
+
+/// The tasks agents learn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Task {
+    /// Enter a roundabout from a yield line through circulating traffic (the Parma study).
+    RoundaboutInsertion,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum TrafficArg {
+    Low,
+    Medium,
+    High,
+}
+
+impl From<TrafficArg> for TrafficLevel {
+    fn from(t: TrafficArg) -> Self {
+        match t {
+            TrafficArg::Low => TrafficLevel::Low,
+            TrafficArg::Medium => TrafficLevel::Medium,
+            TrafficArg::High => TrafficLevel::High,
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    #[arg(long, value_enum, default_value = "roundabout-insertion")]
+    pub task: Task,
+
+    /// The map: a folder or file from `pipeline map import`, or an OSM / Lanelet2 file.
+    #[arg(long, value_name = "PATH")]
+    pub map: PathBuf,
+
+    /// Agent folder (written atomically at the end; checkpoints go to DIR.partial meanwhile).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+
+    /// Environment transitions to train for [default: total_steps of [agent.dqn]].
+    #[arg(long, value_name = "N")]
+    pub steps: Option<u64>,
+
+    /// Traffic level of the training episodes.
+    #[arg(long, value_enum, default_value = "medium")]
+    pub traffic: TrafficArg,
+
+    /// Continue from the last checkpoint in DIR.partial (or from a finished agent in DIR,
+    /// e.g. with a larger --steps), with the config it was started with.
+    #[arg(long)]
+    pub resume: bool,
+
+    /// Greedy episodes of the finished agent logged to the rerun recording.
+    #[arg(long, value_name = "N", default_value_t = 2)]
+    pub record_episodes: usize,
+}
+
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// An agent folder written by `pipeline agent train`.
+    #[arg(long, value_name = "DIR")]
+    pub agent: PathBuf,
+
+    /// The map (need not be the one the agent was trained on).
+    #[arg(long, value_name = "PATH")]
+    pub map: PathBuf,
+
+    /// Episodes per condition and policy.
+    #[arg(long, value_name = "N", default_value_t = 1000)]
+    pub episodes: usize,
+
+    /// Traffic levels [default: low, medium, high].
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub traffic: Vec<TrafficArg>,
+
+    /// The ego's aggressiveness values [default: 0, 0.5, 1].
+    #[arg(long, value_name = "A,B,...", value_delimiter = ',')]
+    pub aggressiveness: Vec<f64>,
+
+    /// Leave out the baselines (rules at 25 / 20 / 15 / 10 m, always Permitted, random,
+    /// always Not Permitted).
+    #[arg(long)]
+    pub no_baselines: bool,
+
+    /// Output folder [default: AGENT/eval/<map name>].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+
+    /// Greedy episodes logged to the rerun recording (medium traffic, aggressiveness 0.5).
+    #[arg(long, value_name = "N", default_value_t = 2)]
+    pub record_episodes: usize,
+}
+
+/// `[agent]` of the `--config` file.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AgentConfig {
+    pub dqn: models::dqn::DqnConfig,
+    pub task: InsertionConfig,
+}
+
+/// `task.json` of an agent folder: what it was trained on, so evaluation renders the same
+/// observations.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskRecord {
+    pub task: Task,
+    /// The map file as given to `agent train`.
+    pub map: PathBuf,
+    pub traffic: TrafficLevel,
+    pub config: InsertionConfig,
+}
+
+pub const TASK_FILE: &str = "task.json";
+
+/// A map from a `pipeline map import` folder or file, or imported from an OSM / Lanelet2
+/// file with the default options.
+pub fn load_or_import_map(path: &Path) -> Result<Map> {
+    let is_osm = {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().to_lowercase())
+            .unwrap_or_default();
+        [".osm", ".osm.gz", ".osm.pbf", ".pbf"]
+            .iter()
+            .any(|ext| name.ends_with(ext))
+    };
+    if is_osm && path.is_file() {
+        maps::build::import_file(path, &maps::ImportOptions::default())
+            .map_err(|e| map_error(path, e, FileRole::OsmInput))
+    } else {
+        Ok(load_map(path)?.0)
+    }
+}
+
+/// The roundabout-insertion setup of `map` (its roundabouts' routes and rasters).
+pub fn insertion_setup(
+    map: Map,
+    map_path: &Path,
+    config: InsertionConfig,
+) -> Result<Arc<InsertionSetup>> {
+    InsertionSetup::new(Arc::new(map), config).map_err(|e| {
+        CliError::file(
+            map_path,
+            format!("cannot set up roundabout insertion: {e}"),
+            "the map needs a roundabout with an entry, a ring and an exit (`pipeline map info` lists them); \
+             check [agent.task] in --config",
+        )
+        .into()
+    })
+}

@@ -1,0 +1,148 @@
+//! `pipeline dataset augment`: joint image-and-label augmentation of a dataset.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::ValueEnum;
+use datasets::augment::{AugmentConfig, AugmentOptions, Preset, augment_dataset};
+
+use super::{DATASET_MARKERS, OnErrorArg, log_samples, open_dataset, report_skipped};
+use crate::commands::Context;
+use crate::error::CliError;
+use crate::output::AtomicDir;
+use crate::recording::Recording;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PresetArg {
+    /// The thesis's five: random crop (80 %), rotation (±10°), flip, blur, Gaussian noise.
+    Thesis,
+    /// Every transform (geometric, colour, blur, noise, JPEG, fog, shadow), moderate chances.
+    Full,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct AugmentArgs {
+    /// The input dataset folder.
+    pub dataset: PathBuf,
+
+    /// Output dataset folder (written atomically).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+
+    /// Augmented copies per item.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub copies: u32,
+
+    /// Which transforms, how likely, in which ranges.
+    #[arg(long, value_enum, default_value = "thesis")]
+    pub preset: PresetArg,
+
+    /// A TOML file of transforms (the `AugmentConfig` fields, e.g. `rotate = { p = 1.0,
+    /// range = [-10.0, 10.0] }`), used instead of --preset.
+    #[arg(long, value_name = "FILE")]
+    pub transforms: Option<PathBuf>,
+
+    /// Also copy every input item unchanged into the output.
+    #[arg(long)]
+    pub include_originals: bool,
+
+    /// What to do with a broken item: stop with its error, or skip it and count it.
+    #[arg(long, value_enum, default_value = "fail")]
+    pub on_error: OnErrorArg,
+
+    /// Dataset name in the card [default: the output folder's name].
+    #[arg(long)]
+    pub name: Option<String>,
+
+    /// How many items to log to rerun.
+    #[arg(long, value_name = "N", default_value_t = 16)]
+    pub log_samples: usize,
+}
+
+fn load_transforms(args: &AugmentArgs) -> Result<AugmentConfig> {
+    let config = match &args.transforms {
+        None => AugmentConfig::preset(match args.preset {
+            PresetArg::Thesis => Preset::Thesis,
+            PresetArg::Full => Preset::Full,
+        }),
+        Some(path) => {
+            let text = std::fs::read_to_string(path).map_err(|e| {
+                CliError::file(
+                    path,
+                    format!("cannot read: {e}"),
+                    "check the --transforms path",
+                )
+            })?;
+            toml::from_str(&text).map_err(|e| {
+                CliError::file(
+                    path,
+                    format!("not a transforms file: {}", e.message()),
+                    "see docs/datasets.md for the fields (crop, rotate, hflip, ... each { p, range })",
+                )
+            })?
+        }
+    };
+    config.validate().map_err(|m| {
+        let what = args
+            .transforms
+            .as_ref()
+            .map_or("--preset".to_owned(), |p| p.display().to_string());
+        CliError::new(
+            format!("{what}: {m}"),
+            "fix the transform's p (0..1) or range",
+        )
+    })?;
+    Ok(config)
+}
+
+pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
+    let config = load_transforms(args)?;
+    let dataset = open_dataset(&args.dataset)?;
+    let dest = ctx.output_path(&args.out);
+    let dir = AtomicDir::create(&dest, DATASET_MARKERS)?;
+    let mut progress = ctx.ui.progress("dataset augment");
+    progress.step(&format!(
+        "{} items x {} copies on {} threads",
+        dataset.items.len(),
+        args.copies,
+        rayon::current_num_threads()
+    ));
+    let opts = AugmentOptions {
+        name: args
+            .name
+            .clone()
+            .unwrap_or_else(|| super::folder_name(&dest)),
+        config,
+        copies: args.copies,
+        include_originals: args.include_originals,
+        seed: ctx.cli.seed,
+        on_error: args.on_error.into(),
+    };
+    let outcome = augment_dataset(&dataset, &opts, dir.path()).map_err(|e| {
+        CliError::new(
+            e.to_string(),
+            "run `pipeline dataset check` on the input, or pass --on-error skip to leave broken items out",
+        )
+    })?;
+    progress.step("logging samples");
+    let recording = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
+    log_samples(
+        &recording,
+        dir.path(),
+        &outcome.items,
+        args.log_samples,
+        "augment",
+    )?;
+    recording.finish()?;
+    drop(progress);
+    report_skipped(ctx, &outcome.skipped);
+    let out = dir.commit()?;
+    ctx.ui.result(&format!(
+        "{} items from {} inputs ({} skipped)",
+        outcome.items.len(),
+        dataset.items.len(),
+        outcome.skipped.len()
+    ));
+    ctx.ui.info(&format!("wrote {}", out.display()));
+    Ok(())
+}

@@ -1,0 +1,78 @@
+//! `pipeline dataset merge`: datasets into one, with sampling weights.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use super::{DATASET_MARKERS, open_dataset};
+use crate::commands::Context;
+use crate::error::CliError;
+use crate::output::AtomicDir;
+
+#[derive(Debug, clap::Args)]
+pub struct MergeArgs {
+    /// The dataset folders to merge.
+    #[arg(required = true, num_args = 2..)]
+    pub datasets: Vec<PathBuf>,
+
+    /// Output dataset folder (written atomically).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+
+    /// Sampling weight per dataset, comma-separated, in the order given [default: all 1].
+    #[arg(long, value_delimiter = ',', value_name = "W")]
+    pub weights: Vec<f64>,
+
+    /// Items in the merged set [default: the inputs' total].
+    #[arg(long, value_name = "N")]
+    pub total: Option<usize>,
+
+    /// Dataset name in the card [default: the output folder's name].
+    #[arg(long)]
+    pub name: Option<String>,
+}
+
+pub fn run(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
+    let weights = if args.weights.is_empty() {
+        vec![1.0; args.datasets.len()]
+    } else {
+        args.weights.clone()
+    };
+    if weights.len() != args.datasets.len() {
+        return Err(CliError::new(
+            format!(
+                "--weights: {} weights for {} datasets",
+                weights.len(),
+                args.datasets.len()
+            ),
+            "give one weight per dataset, e.g. --weights 1,2",
+        )
+        .into());
+    }
+    let inputs = args
+        .datasets
+        .iter()
+        .map(|p| open_dataset(p))
+        .collect::<Result<Vec<_>>>()?;
+    let refs: Vec<&datasets::Dataset> = inputs.iter().collect();
+    let dest = ctx.output_path(&args.out);
+    let dir = AtomicDir::create(&dest, DATASET_MARKERS)?;
+    let name = args
+        .name
+        .clone()
+        .unwrap_or_else(|| super::folder_name(&dest));
+    let (items, card) =
+        datasets::merge::merge(&name, &refs, &weights, args.total, ctx.cli.seed, dir.path())
+            .map_err(|e| {
+                CliError::new(
+                    e.to_string(),
+                    "check the inputs with `pipeline dataset check`",
+                )
+            })?;
+    let out = dir.commit()?;
+    let counts = card.config.get("counts").cloned().unwrap_or_default();
+    ctx.ui
+        .result(&format!("{} items (per input: {counts})", items.len()));
+    ctx.ui.info(&format!("wrote {}", out.display()));
+    Ok(())
+}

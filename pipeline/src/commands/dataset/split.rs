@@ -1,0 +1,86 @@
+//! `pipeline dataset split`: sets each item's split in the manifest, deterministically.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::ValueEnum;
+use datasets::manifest::{MANIFEST_FILE, manifest_text};
+use datasets::split::{GroupBy, SplitRatios, split_items};
+
+use super::open_dataset;
+use crate::commands::Context;
+use crate::error::CliError;
+use crate::output::write_file_atomic;
+
+/// What `split` writes beside the manifest: its settings and counts.
+pub const SPLIT_JSON: &str = "split.json";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum GroupByArg {
+    /// Augmented copies stay with their source item.
+    Source,
+    /// Items sharing the id prefix before `_` (a video sequence) stay together.
+    Prefix,
+    /// Every item on its own.
+    None,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SplitArgs {
+    /// The dataset folder; its manifest is rewritten (atomically) with the splits.
+    pub dataset: PathBuf,
+
+    /// Share of items for training.
+    #[arg(long, default_value_t = 0.7)]
+    pub train: f64,
+
+    /// Share of items for validation.
+    #[arg(long, default_value_t = 0.3)]
+    pub val: f64,
+
+    /// Share of items for testing.
+    #[arg(long, default_value_t = 0.0)]
+    pub test: f64,
+
+    /// What must stay in one split.
+    #[arg(long, value_enum, default_value = "source")]
+    pub group_by: GroupByArg,
+}
+
+pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
+    let ratios = SplitRatios {
+        train: args.train,
+        val: args.val,
+        test: args.test,
+    };
+    ratios.validate().map_err(|m| {
+        CliError::new(
+            m,
+            "e.g. --train 0.7 --val 0.3, or --train 0.8 --val 0.1 --test 0.1",
+        )
+    })?;
+    let group_by = match args.group_by {
+        GroupByArg::Source => GroupBy::Source,
+        GroupByArg::Prefix => GroupBy::Prefix,
+        GroupByArg::None => GroupBy::None,
+    };
+    let mut dataset = open_dataset(&args.dataset)?;
+    let counts = split_items(&mut dataset.items, &ratios, ctx.cli.seed, group_by);
+    let manifest = args.dataset.join(MANIFEST_FILE);
+    let text = manifest_text(&manifest, &dataset.items)?;
+    let record = serde_json::json!({
+        "ratios": ratios,
+        "group_by": group_by,
+        "seed": ctx.cli.seed,
+        "counts": counts,
+    });
+    let mut json = serde_json::to_string_pretty(&record)?;
+    json.push('\n');
+    write_file_atomic(&args.dataset.join(SPLIT_JSON), json.as_bytes())?;
+    write_file_atomic(&manifest, text.as_bytes())?;
+    ctx.ui.result(&format!(
+        "train {}, val {}, test {} items ({} groups)",
+        counts.train, counts.val, counts.test, counts.groups
+    ));
+    Ok(())
+}

@@ -1,0 +1,84 @@
+//! `pipeline logs info | convert`: summaries of MCAP files and ROS 2 bags, and INTERACTION
+//! track files written as MCAP logs.
+
+mod convert;
+mod info;
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use datasets::logs::LogError;
+
+use super::Context;
+use crate::error::CliError;
+
+#[derive(Debug, Subcommand)]
+pub enum LogsCommand {
+    /// Summarise a log (MCAP file, ROS 2 bag folder, metadata.yaml or .db3): files, storage,
+    /// compression, time span, and per topic the type, count, rate and decoder.
+    Info(InfoArgs),
+    /// Convert an INTERACTION track file (with its Lanelet2 map) into an MCAP log: every
+    /// vehicle a detection, one of them the ego's odometry.
+    Convert(ConvertArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// The log: an .mcap file, a bag folder, its metadata.yaml, or a .db3 file.
+    pub log: PathBuf,
+
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ConvertArgs {
+    /// INTERACTION track file (`vehicle_tracks_NNN.csv`, or `.csv.gz`).
+    pub tracks: PathBuf,
+
+    /// The scenario's Lanelet2 map (`.osm`): its projection defines the map frame.
+    #[arg(long, value_name = "FILE")]
+    pub map: PathBuf,
+
+    /// The output MCAP file (written atomically).
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+
+    /// Track id of the vehicle that is the ego (also written as nav_msgs/Odometry and a
+    /// GPS fix).
+    #[arg(long, value_name = "TRACK_ID")]
+    pub ego: Option<u32>,
+
+    /// Chunk compression.
+    #[arg(long, value_enum, default_value = "zstd")]
+    pub compression: CompressionArg,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CompressionArg {
+    Zstd,
+    Lz4,
+    None,
+}
+
+pub fn run(ctx: &Context<'_>, command: &LogsCommand) -> Result<()> {
+    match command {
+        LogsCommand::Info(args) => info::run(ctx, args),
+        LogsCommand::Convert(args) => convert::run(ctx, args),
+    }
+}
+
+/// A logs-library error as a one-line message naming the file, with a hint.
+pub(crate) fn log_error(err: LogError) -> anyhow::Error {
+    let hint = match &err {
+        LogError::Io { .. } => "check that the path exists and is readable",
+        LogError::Format { .. } => {
+            "give an MCAP file, a ROS 2 bag folder (with metadata.yaml) or a .db3 file; \
+             a truncated or corrupt file can be cut back with `mcap recover`"
+        }
+        LogError::Config(_) => "see `pipeline logs --help`",
+    };
+    CliError::new(err.to_string(), hint).into()
+}

@@ -1,0 +1,145 @@
+//! `pipeline segmenter train | eval | predict | bench`: the PSPNet-style segmenter of
+//! `models::segmenter` on datasets in the project's manifest format.
+//!
+//! ```text
+//! pipeline segmenter train   --data DIR[:WEIGHT]... [--val DIR...] --out RUN [--resume] [--max-minutes M] ...
+//! pipeline segmenter eval    --model MODEL --data DIR... [--split val] --out DIR
+//! pipeline segmenter predict --model MODEL INPUT --out DIR
+//! pipeline segmenter bench   [--model MODEL] [--size 256] [--batch 1] [--threads 2]
+//! ```
+//!
+//! `MODEL` is a model folder (`model.json` + `model.bpk`) or a training run folder, whose
+//! `best/` model is used.
+
+mod bench;
+mod eval;
+mod predict;
+mod record;
+mod train;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use burn::tensor::Device;
+use clap::{Args, Subcommand};
+use models::segmenter::data::{Source, SourceSpec, Split};
+use models::segmenter::files::{MODEL_CONFIG_FILE, load_model};
+use models::segmenter::train::BEST_DIR;
+use models::segmenter::{PspNet, PspNetConfig, SegmenterError};
+
+use super::Context;
+use crate::error::CliError;
+
+#[derive(Debug, Subcommand)]
+pub enum SegmenterCommand {
+    /// Train on one or several datasets (checkpoints each epoch; --resume after a kill).
+    Train(Box<train::TrainArgs>),
+    /// Evaluate a model: metrics.json, report.md and a confusion-matrix image.
+    Eval(eval::EvalArgs),
+    /// Label an image or a folder of images: label PNGs and overlays.
+    Predict(predict::PredictArgs),
+    /// Inference latency and throughput, training-step time, parameters and FLOPs.
+    Bench(bench::BenchArgs),
+}
+
+pub fn run(ctx: &Context<'_>, command: &SegmenterCommand) -> Result<()> {
+    match command {
+        SegmenterCommand::Train(args) => train::run(ctx, args),
+        SegmenterCommand::Eval(args) => eval::run(ctx, args),
+        SegmenterCommand::Predict(args) => predict::run(ctx, args),
+        SegmenterCommand::Bench(args) => bench::run(ctx, args),
+    }
+}
+
+/// Options shared by the commands that run a trained model.
+#[derive(Debug, Args)]
+pub struct ModelArgs {
+    /// A model folder (model.json, model.bpk) or a training run folder (its best model).
+    #[arg(long, value_name = "DIR")]
+    pub model: PathBuf,
+
+    /// Short side the images are resized to before the network (predictions are scaled
+    /// back to the image's size); 0 keeps the images' own size.
+    #[arg(long, value_name = "PX", default_value_t = 256)]
+    pub size: u32,
+}
+
+impl ModelArgs {
+    pub fn short_side(&self) -> Option<u32> {
+        (self.size > 0).then_some(self.size)
+    }
+}
+
+/// The CPU device (burn's flex backend).
+pub fn cpu() -> Device {
+    Device::flex()
+}
+
+/// A model folder, or a run folder's best model.
+pub fn model_dir(path: &Path) -> PathBuf {
+    if !path.join(MODEL_CONFIG_FILE).is_file()
+        && path.join(BEST_DIR).join(MODEL_CONFIG_FILE).is_file()
+    {
+        path.join(BEST_DIR)
+    } else {
+        path.to_path_buf()
+    }
+}
+
+/// Loads `--model` with an error that names the folder and says what to give.
+pub fn open_model(path: &Path, device: &Device) -> Result<(PspNet, PspNetConfig)> {
+    load_model(&model_dir(path), device).map_err(|e| {
+        segmenter_error(
+            e,
+            "give a model folder or a run folder written by `pipeline segmenter train`",
+        )
+    })
+}
+
+/// Opens datasets given as `DIR[:WEIGHT]`, selecting `split`.
+pub fn open_sources(specs: &[SourceSpec], split: Split) -> Result<Vec<Source>> {
+    specs
+        .iter()
+        .map(|spec| {
+            Source::open(spec, split).map_err(|e| {
+                segmenter_error(
+                    e,
+                    "give a dataset folder written by `pipeline dataset generate | import | augment`",
+                )
+            })
+        })
+        .collect()
+}
+
+/// A library error as the user sees it: one line naming the file, and a hint.
+pub fn segmenter_error(err: SegmenterError, hint: &str) -> anyhow::Error {
+    let hint = match &err {
+        SegmenterError::Config(_) => "see `pipeline segmenter <command> --help`",
+        _ => hint,
+    };
+    CliError::new(err.to_string(), hint).into()
+}
+
+/// Parses `DIR[:WEIGHT]`.
+pub fn parse_source(text: &str) -> Result<SourceSpec, String> {
+    SourceSpec::parse(text)
+}
+
+/// Runs `f` on a rayon pool of `threads` threads (burn's flex backend uses the current pool).
+pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+    match threads {
+        None => Ok(f()),
+        Some(n) => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| {
+                    CliError::new(
+                        format!("cannot start {n} threads: {e}"),
+                        "use fewer --threads",
+                    )
+                })?;
+            Ok(pool.install(f))
+        }
+    }
+}

@@ -1,0 +1,287 @@
+//! `pipeline segmenter train`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use burn::config::Config as _;
+use clap::{Args, ValueEnum};
+use models::segmenter::PspNetConfig;
+use models::segmenter::data::{SourceSpec, Split};
+use models::segmenter::train::{StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, train};
+
+use super::record::TrainRecorder;
+use super::{Context, cpu, open_sources, parse_source, segmenter_error, with_threads};
+use crate::error::CliError;
+use crate::recording::Recording;
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Training dataset, optionally with a sampling weight (`DIR:2`); repeat for several.
+    /// Its `train` split is used (every item when it has no splits).
+    #[arg(long = "data", value_name = "DIR[:WEIGHT]", required = true, value_parser = parse_source)]
+    pub data: Vec<SourceSpec>,
+
+    /// Validation dataset (its `val` split); repeat for several [default: the `val` split
+    /// of the --data datasets].
+    #[arg(long = "val", value_name = "DIR", value_parser = parse_source)]
+    pub val: Vec<SourceSpec>,
+
+    /// The run folder: checkpoints, curves, the best model (best/), the recording.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+
+    /// All settings as a JSON file (the train.json a run writes); the options below
+    /// override it.
+    #[arg(long, value_name = "FILE")]
+    pub settings: Option<PathBuf>,
+
+    /// Stop when the run has taken this long (resumed sessions count together).
+    #[arg(long, value_name = "MINUTES")]
+    pub max_minutes: Option<f64>,
+
+    #[arg(long)]
+    pub epochs: Option<usize>,
+
+    /// Stop after this many epochs without a better validation mIoU.
+    #[arg(long, value_name = "EPOCHS")]
+    pub patience: Option<usize>,
+
+    #[arg(long)]
+    pub batch_size: Option<usize>,
+
+    /// Batches whose gradients make one optimiser step.
+    #[arg(long, value_name = "N")]
+    pub accumulation: Option<usize>,
+
+    /// Adam's learning rate [default: 1e-4].
+    #[arg(long, value_name = "LR")]
+    pub lr: Option<f64>,
+
+    /// Poly learning-rate decay power (0.9 is usual) [default: constant].
+    #[arg(long, value_name = "POWER")]
+    pub poly: Option<f64>,
+
+    #[arg(long, value_name = "STEPS")]
+    pub warmup_steps: Option<usize>,
+
+    /// Items per epoch [default: all train items].
+    #[arg(long, value_name = "N")]
+    pub samples_per_epoch: Option<usize>,
+
+    /// Short side of the images [default: 256].
+    #[arg(long, value_name = "PX")]
+    pub size: Option<u32>,
+
+    /// Side of the square training crops [default: 256].
+    #[arg(long, value_name = "PX")]
+    pub crop: Option<u32>,
+
+    /// Validation images per dataset each epoch [default: all].
+    #[arg(long, value_name = "N")]
+    pub val_limit: Option<usize>,
+
+    /// Loss weight per class, comma-separated (e.g. from `pipeline dataset stats`).
+    #[arg(long, value_name = "W,W,...", value_delimiter = ',')]
+    pub class_weights: Option<Vec<f32>>,
+
+    #[command(flatten)]
+    pub arch: ArchArgs,
+
+    /// Threads of the run [default: all cores].
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// The architecture options (of `train`, and of `bench` without a model).
+#[derive(Debug, Args)]
+pub struct ArchArgs {
+    /// Encoder blocks [default: resnet18].
+    #[arg(long, value_enum)]
+    pub encoder: Option<EncoderArg>,
+
+    /// Channel multiplier of the encoder [default: 1].
+    #[arg(long)]
+    pub width: Option<f64>,
+
+    /// Encoder depth: 3 is output stride 8 [default: 3].
+    #[arg(long)]
+    pub depth: Option<usize>,
+
+    /// Dilate stages 3 and 4 instead of striding.
+    #[arg(long)]
+    pub dilated: bool,
+
+    /// Pyramid pooling output channels [default: 512].
+    #[arg(long, value_name = "N")]
+    pub psp_channels: Option<usize>,
+
+    /// Channels of the stride-4 skip refinement [default: 0, off].
+    #[arg(long, value_name = "N")]
+    pub skip_channels: Option<usize>,
+
+    /// Train with an auxiliary head on the second-to-last encoder stage.
+    #[arg(long)]
+    pub aux_head: bool,
+}
+
+impl ArchArgs {
+    /// Applies the options given to `m`.
+    pub fn apply(&self, m: &mut PspNetConfig) {
+        if let Some(e) = self.encoder {
+            m.blocks = match e {
+                EncoderArg::Resnet18 => vec![2, 2, 2, 2],
+                EncoderArg::Resnet34 => vec![3, 4, 6, 3],
+            };
+        }
+        set(&mut m.width, self.width);
+        set(&mut m.depth, self.depth);
+        set(&mut m.psp_channels, self.psp_channels);
+        set(&mut m.skip_channels, self.skip_channels);
+        m.dilated |= self.dilated;
+        m.aux_head |= self.aux_head;
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum EncoderArg {
+    Resnet18,
+    Resnet34,
+}
+
+impl TrainArgs {
+    /// The settings: `--settings` (or, when resuming, the run's train.json) under the options.
+    pub fn training_config(&self, seed: u64, run_dir: &Path) -> Result<TrainingConfig> {
+        let file = match (&self.settings, self.resume) {
+            (Some(path), _) => Some(path.clone()),
+            (None, true) => Some(run_dir.join(TRAIN_CONFIG_FILE)),
+            (None, false) => None,
+        };
+        let mut c = match &file {
+            Some(path) => TrainingConfig::load(path).map_err(|e| {
+                CliError::file(
+                    path,
+                    format!("not a training config: {e}"),
+                    "give a train.json written by `pipeline segmenter train`",
+                )
+            })?,
+            None => TrainingConfig::new(PspNetConfig::new()).with_seed(seed),
+        };
+        if file.is_none() || self.settings.is_some() {
+            c.seed = seed;
+        }
+        self.arch.apply(&mut c.model);
+        set(&mut c.epochs, self.epochs);
+        set(&mut c.batch_size, self.batch_size);
+        set(&mut c.accumulation, self.accumulation);
+        set(&mut c.learning_rate, self.lr);
+        set(&mut c.poly_power, self.poly);
+        set(&mut c.warmup_steps, self.warmup_steps);
+        set(&mut c.size, self.size);
+        set(&mut c.crop, self.crop);
+        if self.samples_per_epoch.is_some() {
+            c.samples_per_epoch = self.samples_per_epoch;
+        }
+        if self.val_limit.is_some() {
+            c.val_limit = self.val_limit;
+        }
+        if self.class_weights.is_some() {
+            c.class_weights.clone_from(&self.class_weights);
+        }
+        if self.patience.is_some() {
+            c.patience = self.patience;
+        }
+        if self.max_minutes.is_some() {
+            c.max_minutes = self.max_minutes;
+        }
+        c.validate()
+            .map_err(|e| segmenter_error(e, "see `pipeline segmenter train --help`"))?;
+        Ok(c)
+    }
+}
+
+/// A fresh run needs an absent or empty folder; a resumed one the folder of a run.
+fn prepare_run_dir(out: &Path, resume: bool) -> Result<()> {
+    let has_run = out.join(TRAIN_CONFIG_FILE).is_file();
+    if resume && !has_run {
+        return Err(CliError::file(
+            out,
+            "holds no training run to resume (no train.json)",
+            "start it without --resume",
+        )
+        .into());
+    }
+    if !resume {
+        let used = std::fs::read_dir(out).is_ok_and(|mut entries| entries.next().is_some());
+        if used {
+            let hint = if has_run {
+                "continue it with --resume, or give a new --out folder"
+            } else {
+                "give a new or empty --out folder"
+            };
+            return Err(CliError::file(out, "is not empty", hint).into());
+        }
+    }
+    std::fs::create_dir_all(out).map_err(|e| {
+        CliError::file(
+            out,
+            format!("cannot create folder: {e}"),
+            "check the --out path",
+        )
+    })?;
+    Ok(())
+}
+
+fn set<T>(slot: &mut T, value: Option<T>) {
+    if let Some(v) = value {
+        *slot = v;
+    }
+}
+
+pub fn run(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
+    let out = ctx.output_path(&args.out);
+    let config = args.training_config(ctx.cli.seed, &out)?;
+    let train_sources = open_sources(&args.data, Split::Train)?;
+    let val_sources = if args.val.is_empty() {
+        open_sources(&args.data, Split::Val)?
+    } else {
+        open_sources(&args.val, Split::Val)?
+    };
+    let data = TrainData {
+        train: train_sources,
+        val: val_sources,
+    };
+    prepare_run_dir(&out, args.resume)?;
+    // A resumed session writes a new recording and logs the curves so far into it first.
+    let recording = Recording::open(&ctx.cli.rerun, Some(&out))?;
+    let mut progress = ctx.ui.progress("segmenter train");
+    let mut recorder = TrainRecorder::new(&recording, &mut progress, config.model.classes)?;
+    let device = cpu();
+    let summary = with_threads(args.threads, || {
+        train(&out, &config, &data, args.resume, &device, &mut recorder)
+    })?
+    .map_err(|e| segmenter_error(e, "check the datasets and the run folder"))?;
+    recorder.finish()?;
+    drop(progress);
+    recording.finish()?;
+    let state = &summary.state;
+    let why = match state.stopped {
+        Some(StopReason::Epochs) => "all epochs done",
+        Some(StopReason::EarlyStopping) => "early stopping",
+        Some(StopReason::TimeBudget) => "time budget reached",
+        None => "stopped",
+    };
+    ctx.ui.result(&format!(
+        "{} epochs, {} steps, {:.0} s ({why}); best validation mIoU {:.4} at epoch {}; model in {}",
+        state.epochs_done,
+        state.step,
+        state.seconds,
+        state.best_miou,
+        state.best_epoch,
+        summary.best_dir.display()
+    ));
+    Ok(())
+}

@@ -1,0 +1,146 @@
+#!/usr/bin/env python3
+"""Times the burn segmenter against the same network in PyTorch on the CPU, in one run.
+
+Both sides build the default architecture (ResNet-18 basic blocks, width 1, depth 3 =
+output stride 8, pyramid bins 1, 2, 3, 6, 512 pyramid channels, 5 classes; or the options
+given) with untrained weights, and time with the same protocol: WARMUP untimed runs, then
+RUNS timed ones, median; fixed pseudo-random inputs.
+
+- inference: one forward pass at SIZE x SIZE, batch 1, THREADS threads (burn: a rayon pool
+  of THREADS threads; PyTorch: torch.set_num_threads(THREADS), eval mode, no_grad);
+- training step: forward, cross-entropy, backward and an Adam step (lr 1e-4) at batch
+  TRAIN_BATCH, training mode (batch-norm statistics, dropout), same threads.
+
+Ours is `pipeline segmenter bench --json` (release build); PyTorch's network is the
+PspNet class of scripts/segmenter_reference.py (the module the numerics test checks burn
+against), so both run the same layers.
+
+Usage (from the repository root; installs torch from PyPI when missing):
+    cargo build --release -p pipeline
+    python3 scripts/bench_segmenter.py [--runs 20] [--threads 2] [--size 256]
+        [--pipeline target/release/pipeline] [--out docs/benchmarks/segmenter.json] [-- extra bench options]
+"""
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def load_reference():
+    spec = importlib.util.spec_from_file_location("segmenter_reference", ROOT / "scripts" / "segmenter_reference.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # installs torch and safetensors when missing
+    return module
+
+
+def ours(args, extra):
+    cmd = [args.pipeline, "-q", "--rerun", "off", "segmenter", "bench", "--json",
+           "--size", str(args.size), "--batch", "1", "--threads", str(args.threads),
+           "--iterations", str(args.runs), "--warmup", str(args.warmup),
+           "--train-steps", str(args.train_runs), "--train-batch", str(args.train_batch)] + extra
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"failed ({r.returncode}): {' '.join(cmd)}\n{r.stderr}")
+    return json.loads(r.stdout), cmd
+
+
+def median_ms(fn, warmup, runs):
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1000.0)
+    return statistics.median(times), min(times), max(times)
+
+
+def pytorch(args, ref, config):
+    import torch
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    cfg = dict(config)
+    model = ref.PspNet(cfg)
+    params = sum(p.numel() for p in model.parameters())
+    x = torch.randn(1, 3, args.size, args.size)
+
+    model.eval()
+    with torch.no_grad():
+        inf = median_ms(lambda: model(x), args.warmup, args.runs)
+
+    model.train()
+    xb = torch.randn(args.train_batch, 3, args.size, args.size)
+    yb = torch.randint(0, cfg["classes"], (args.train_batch, args.size, args.size))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    loss_fn = torch.nn.CrossEntropyLoss(ignore_index=255)
+    drop = torch.nn.Dropout2d(cfg["dropout"])
+
+    def step():
+        opt.zero_grad(set_to_none=True)
+        h, w = xb.shape[2:]
+        stages = model.encoder(xb)
+        y = drop(model.pyramid(stages[-1]))
+        if model.skip is not None:
+            y = model.skip(y, stages[0])
+        logits = torch.nn.functional.interpolate(model.classifier(y), size=(h, w), mode="bilinear",
+                                                 align_corners=cfg["align_corners"])
+        loss_fn(logits, yb).backward()
+        opt.step()
+
+    train = median_ms(step, min(args.warmup, 1), args.train_runs)
+    return {"torch": torch.__version__, "parameters": params,
+            "inference_ms": {"median": inf[0], "min": inf[1], "max": inf[2], "runs": args.runs},
+            "train_step_ms": {"median": train[0], "min": train[1], "max": train[2], "runs": args.train_runs}}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--train-runs", type=int, default=5)
+    ap.add_argument("--warmup", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--train-batch", type=int, default=8)
+    default_bin = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / "release" / "pipeline"
+    ap.add_argument("--pipeline", default=str(default_bin))
+    ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "segmenter.json"))
+    args, extra = ap.parse_known_args()
+    extra = [e for e in extra if e != "--"]
+    if not Path(args.pipeline).exists():
+        sys.exit(f"{args.pipeline} not found: cargo build --release -p pipeline (or give --pipeline)")
+    ref = load_reference()
+    burn, cmd = ours(args, extra)
+    torch_figures = pytorch(args, ref, burn["config"])
+    if torch_figures["parameters"] != burn["parameters"]:
+        sys.exit(f"not the same network: {burn['parameters']} parameters in burn, "
+                 f"{torch_figures['parameters']} in PyTorch")
+    b_inf, t_inf = burn["inference_ms"]["median"], torch_figures["inference_ms"]["median"]
+    b_tr, t_tr = burn["train_step_ms"]["median"], torch_figures["train_step_ms"]["median"]
+    result = {
+        "date": time.strftime("%Y-%m-%d"), "machine": platform.processor() or platform.machine(),
+        "command": " ".join(map(str, cmd)), "size": args.size, "threads": args.threads,
+        "train_batch": args.train_batch, "burn": burn, "pytorch": torch_figures,
+        "inference_ratio_torch_over_burn": t_inf / b_inf, "train_step_ratio_torch_over_burn": t_tr / b_tr,
+    }
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    print(f"network: {burn['parameters']} parameters, {burn['gflops_per_image']:.2f} GFLOPs per {args.size}x{args.size} image")
+    print("| measurement | burn (flex) ms | PyTorch ms | PyTorch / burn |")
+    print("| --- | ---: | ---: | ---: |")
+    print(f"| inference {args.size}x{args.size}, batch 1, {args.threads} threads (median of {args.runs}) "
+          f"| {b_inf:.1f} | {t_inf:.1f} | {t_inf / b_inf:.2f} |")
+    print(f"| training step, batch {args.train_batch}, {args.threads} threads (median of {args.train_runs}) "
+          f"| {b_tr:.0f} | {t_tr:.0f} | {t_tr / b_tr:.2f} |")
+    print(f"PyTorch {torch_figures['torch']}; raw figures in {args.out}")
+
+
+if __name__ == "__main__":
+    main()

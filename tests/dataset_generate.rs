@@ -1,0 +1,247 @@
+//! End-to-end tests of `pipeline dataset generate` on the bundled OSM data (no
+//! ../shared/data needed): byte-identical output across runs and thread counts, the
+//! dataset's files and label values, the required image sizes, and bad input.
+
+#![allow(clippy::unwrap_used, clippy::print_stdout)]
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use common::{assert_success, entries, pipeline, read_json, stderr};
+
+/// The bundled map every test renders from.
+fn bundled_map() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/osm/northwestern_nu.osm.pbf")
+}
+
+/// Every file under `dir` (relative path -> bytes).
+fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
+        for entry in std::fs::read_dir(dir).unwrap().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                walk(root, &path, out);
+            } else {
+                let rel = path
+                    .strip_prefix(root)
+                    .unwrap()
+                    .to_string_lossy()
+                    .into_owned();
+                out.insert(rel, std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// Runs `dataset generate` with `threads` rayon threads.
+fn generate(map: &Path, out: &Path, threads: &str, extra: &[&str]) -> std::process::Output {
+    let mut cmd = pipeline();
+    cmd.env("RAYON_NUM_THREADS", threads).args([
+        "--rerun", "off", "--seed", "11", "dataset", "generate", "--map",
+    ]);
+    cmd.arg(map).arg("--out").arg(out).args(extra);
+    cmd.output().unwrap()
+}
+
+#[test]
+fn generation_is_byte_identical_across_runs_and_thread_counts() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Import once, then render from the map folder; the first run imports on the fly.
+    let map_dir = tmp.path().join("map");
+    let out = pipeline()
+        .args(["--rerun", "off", "map", "import"])
+        .arg(bundled_map())
+        .arg("--out")
+        .arg(&map_dir)
+        .output()
+        .unwrap();
+    assert_success(&out, "map import");
+    let args = [
+        "--count",
+        "24",
+        "--size",
+        "256x256",
+        "--topdown",
+        "--previews",
+    ];
+    let runs = [
+        (bundled_map(), "1", "from_osm_1_thread"),
+        (map_dir.clone(), "2", "from_map_2_threads"),
+        (map_dir.clone(), "1", "from_map_1_thread"),
+    ];
+    let mut outputs = Vec::new();
+    for (map, threads, name) in &runs {
+        // The same folder name in each run: the card is named after it.
+        let dir = tmp.path().join(name).join("ds");
+        let out = generate(map, &dir, threads, &args);
+        assert_success(&out, name);
+        outputs.push(files(&dir));
+    }
+    let first = &outputs[0];
+    // 24 items × (image, label, top-down, preview) + manifest + card.
+    assert_eq!(
+        first.len(),
+        24 * 4 + 2,
+        "{:?}",
+        first.keys().collect::<Vec<_>>()
+    );
+    for (other, (_, _, name)) in outputs.iter().zip(&runs).skip(1) {
+        assert_eq!(
+            first.keys().collect::<Vec<_>>(),
+            other.keys().collect::<Vec<_>>()
+        );
+        for (path, bytes) in first {
+            // The card names its input, which differs between the OSM file and the map.
+            if path != "card.json" {
+                assert!(other[path] == *bytes, "{path} differs in {name}");
+            }
+        }
+    }
+    assert!(outputs[1]["card.json"] == outputs[2]["card.json"]);
+
+    // Another seed gives other images.
+    let dir = tmp.path().join("seed12");
+    let mut cmd = pipeline();
+    cmd.args([
+        "--rerun", "off", "--seed", "12", "dataset", "generate", "--map",
+    ])
+    .arg(&map_dir)
+    .arg("--out")
+    .arg(&dir)
+    .args(["--count", "2", "--size", "256x256"]);
+    assert_success(&cmd.output().unwrap(), "seed 12");
+    assert_ne!(
+        std::fs::read(dir.join("images/gen_000000.png")).unwrap(),
+        first["images/gen_000000.png"]
+    );
+}
+
+#[test]
+fn a_dataset_with_valid_labels_manifest_and_card() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("ds");
+    let out = generate(
+        &bundled_map(),
+        &dir,
+        "2",
+        &["--count", "16", "--size", "256x256", "--topdown"],
+    );
+    assert_success(&out, "generate");
+    assert_eq!(
+        entries(&dir),
+        ["card.json", "images", "labels", "manifest.jsonl", "topdown"]
+    );
+    let manifest = std::fs::read_to_string(dir.join("manifest.jsonl")).unwrap();
+    let lines: Vec<serde_json::Value> = manifest
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 16);
+    let mut shares = [0u64; 256];
+    for item in &lines {
+        let id = item["id"].as_str().unwrap();
+        assert_eq!(item["source"], "generate");
+        assert_eq!(
+            (item["width"].as_u64(), item["height"].as_u64()),
+            (Some(256), Some(256))
+        );
+        for key in ["seed", "ego", "camera", "look", "actors"] {
+            assert!(item["params"].get(key).is_some(), "params.{key} of {id}");
+        }
+        let image = image::open(dir.join(item["image"].as_str().unwrap())).unwrap();
+        assert_eq!(image.color(), image::ColorType::Rgb8);
+        let label = image::open(dir.join(item["label"].as_str().unwrap())).unwrap();
+        let label = label.as_luma8().expect("labels are single-channel 8-bit");
+        assert_eq!(label.dimensions(), (256, 256));
+        for &v in label.as_raw() {
+            shares[usize::from(v)] += 1;
+        }
+        let top = image::open(dir.join(format!("topdown/{id}.png"))).unwrap();
+        let top = top
+            .as_luma8()
+            .expect("top-down labels are single-channel 8-bit");
+        assert!(top.as_raw().iter().all(|&v| v < 5));
+        // The ego stands on its lane: the top-down view's centre is road or marking.
+        let centre = top.get_pixel(top.width() / 2, top.height() / 2).0[0];
+        assert!(centre <= 1, "top-down centre of {id} is class {centre}");
+    }
+    // Only class ids (and 255, which generation never needs) appear; road, marking and
+    // other always, road users in some images.
+    assert!(
+        shares
+            .iter()
+            .enumerate()
+            .all(|(v, &n)| n == 0 || v < 5 || v == 255)
+    );
+    for class in 0..5 {
+        assert!(
+            shares[class] > 0,
+            "class {class} never appears: {:?}",
+            &shares[..5]
+        );
+    }
+    let card = read_json(&dir.join("card.json"));
+    assert_eq!(card["seed"], 11);
+    assert_eq!(card["labelable"], serde_json::json!([0, 1, 2, 3, 4]));
+    assert_eq!(card["config"]["count"], 16);
+    assert_eq!(card["config"]["generate"]["camera"]["width"], 256);
+}
+
+#[test]
+fn the_required_image_sizes_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (size, w, h) in [("480x270", 480, 270), ("512x512", 512, 512)] {
+        let dir = tmp.path().join(size);
+        let out = generate(&bundled_map(), &dir, "2", &["--count", "2", "--size", size]);
+        assert_success(&out, size);
+        let label = image::open(dir.join("labels/gen_000001.png")).unwrap();
+        assert_eq!((label.width(), label.height()), (w, h));
+        let img = image::open(dir.join("images/gen_000001.png")).unwrap();
+        assert_eq!((img.width(), img.height()), (w, h));
+    }
+}
+
+#[test]
+fn bad_input_names_the_file_and_writes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("out");
+    let missing = tmp.path().join("no_such_map.osm.pbf");
+    let out = generate(&missing, &out_dir, "1", &["--count", "2"]);
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("no_such_map.osm.pbf") && err.contains("no such file"),
+        "{err}"
+    );
+    assert!(!out_dir.exists());
+
+    let garbage = tmp.path().join("map.json");
+    std::fs::write(&garbage, "{\"not\": \"a map\"}").unwrap();
+    let out = generate(&garbage, &out_dir, "1", &["--count", "2"]);
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("map.json") && !err.contains("panicked"),
+        "{err}"
+    );
+    assert!(!out_dir.exists());
+
+    let bad_pbf = tmp.path().join("broken.osm.pbf");
+    std::fs::write(&bad_pbf, b"this is not a PBF file").unwrap();
+    let out = generate(&bad_pbf, &out_dir, "1", &["--count", "2"]);
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("broken.osm.pbf"), "{}", stderr(&out));
+    assert!(!out_dir.exists());
+
+    for bad in [["--size", "0x10"], ["--fov", "200"]] {
+        let out = generate(&bundled_map(), &out_dir, "1", &bad);
+        assert!(!out.status.success(), "{bad:?}");
+        assert!(stderr(&out).starts_with("error:"), "{}", stderr(&out));
+        assert!(!out_dir.exists());
+    }
+}
