@@ -106,7 +106,12 @@ fn camvid_val_keeps_its_pixel_shares_in_our_classes() {
     assert_eq!(format!("{:.2}", percent("human")), "0.65");
     assert_eq!(percent("human"), source_percent("Pedestrian"));
     // Bicyclist (rider and bicycle in one region) is ignored and reported as unmapped.
-    assert!(report.unmapped_source_classes.iter().any(|c| c.name == "Bicyclist"));
+    assert!(
+        report
+            .unmapped_source_classes
+            .iter()
+            .any(|c| c.name == "Bicyclist")
+    );
     // CamVid cannot label lane markings: none written, and the card says so.
     assert_eq!(percent("lane_marking"), 0.0);
     assert!(!report.labelable.iter().any(|c| c == "lane_marking"));

@@ -292,6 +292,22 @@ fn folders(opts: &LayoutOptions) -> Result<Vec<SourcePair>> {
             split: None,
         });
     }
+    // A label without an image is a broken item, not one to drop silently: it is listed
+    // with the image path it lacks, so the import reports it (error or counted skip).
+    let image_stems: std::collections::BTreeSet<String> =
+        pairs.iter().map(|p| stem(&p.image)).collect();
+    for label in label_files.into_iter().filter(|p| is_image_file(p)) {
+        let name = stem(&label);
+        if !image_stems.contains(&name) {
+            pairs.push(SourcePair {
+                id: sanitize_id(&name),
+                image: images.join(&name),
+                label,
+                split: None,
+            });
+        }
+    }
+    pairs.sort_by(|a, b| a.id.cmp(&b.id));
     Ok(pairs)
 }
 

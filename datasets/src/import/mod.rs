@@ -186,6 +186,12 @@ fn import_pair(
     lane_map: &ClassMap,
     out_dir: &Path,
 ) -> Result<Imported> {
+    if !pair.image.exists() {
+        return Err(DatasetError::invalid(
+            &pair.image,
+            format!("missing: the label {} has no image", pair.label.display()),
+        ));
+    }
     let image_bytes = read(&pair.image)?;
     let image = decode_image(&pair.image, &image_bytes)?;
     let (width, height) = (image.width(), image.height());
