@@ -39,7 +39,8 @@ pub struct Item {
     pub label: String,
     pub width: u32,
     pub height: u32,
-    /// Where the item comes from: `generate`, `camvid`, `augment:<source id>`, ...
+    /// Where the item comes from: `generate`, `camvid`, ...; an augmented copy has
+    /// `augment:<its source item's source>` (e.g. `augment:generate`).
     pub source: String,
     /// `train`, `val` or `test` once split.
     #[serde(default, skip_serializing_if = "Option::is_none")]

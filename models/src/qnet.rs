@@ -61,31 +61,25 @@ pub struct QNetworkConfig {
     pub dueling: bool,
 }
 
+/// The Nature-DQN convolutions (32 8×8/4, 64 4×4/2, 64 3×3/1), shared by the presets.
+fn nature_convolutions() -> Vec<ConvSpec> {
+    [(32, 8, 4), (64, 4, 2), (64, 3, 1)]
+        .into_iter()
+        .map(|(channels, kernel, stride)| ConvSpec {
+            channels,
+            kernel,
+            stride,
+            padding: 0,
+        })
+        .collect()
+}
+
 impl Default for QNetworkConfig {
     /// The Nature-DQN convolutions (32 8×8/4, 64 4×4/2, 64 3×3/1), a 64-wide scalar MLP and
     /// one 256-wide hidden layer.
     fn default() -> Self {
         QNetworkConfig {
-            convolutions: vec![
-                ConvSpec {
-                    channels: 32,
-                    kernel: 8,
-                    stride: 4,
-                    padding: 0,
-                },
-                ConvSpec {
-                    channels: 64,
-                    kernel: 4,
-                    stride: 2,
-                    padding: 0,
-                },
-                ConvSpec {
-                    channels: 64,
-                    kernel: 3,
-                    stride: 1,
-                    padding: 0,
-                },
-            ],
+            convolutions: nature_convolutions(),
             pooling: Pooling::Flatten,
             scalar_hidden: 64,
             hidden: vec![256],
@@ -99,26 +93,7 @@ impl QNetworkConfig {
     /// all scalar inputs) joined before the fully connected layers.
     pub fn its() -> Self {
         QNetworkConfig {
-            convolutions: vec![
-                ConvSpec {
-                    channels: 32,
-                    kernel: 8,
-                    stride: 4,
-                    padding: 0,
-                },
-                ConvSpec {
-                    channels: 64,
-                    kernel: 4,
-                    stride: 2,
-                    padding: 0,
-                },
-                ConvSpec {
-                    channels: 64,
-                    kernel: 3,
-                    stride: 1,
-                    padding: 0,
-                },
-            ],
+            convolutions: nature_convolutions(),
             pooling: Pooling::Average {
                 height: 2,
                 width: 2,

@@ -113,7 +113,7 @@ pub enum Group {
         #[command(subcommand)]
         command: crate::commands::agent::AgentCommand,
     },
-    /// Segmentation datasets: import, augment, statistics, split, check, merge.
+    /// Segmentation datasets: generate from a map, import, augment, statistics, split, check, merge.
     Dataset {
         #[command(subcommand)]
         command: crate::commands::dataset::DatasetCommand,

@@ -533,6 +533,8 @@ pub fn augment_dataset(
             "source_dataset": dataset.card.name,
             "source_path": dataset.root.display().to_string(),
             "source_provenance": dataset.card.provenance,
+            // Items left out under --on-error skip, with why: the dataset says what it lacks.
+            "skipped": skipped,
         }),
         serde_json::json!({
             "transforms": opts.config,
@@ -728,6 +730,8 @@ mod tests {
         assert_eq!(outcome.items.len(), 2);
         assert_eq!(outcome.skipped.len(), 1);
         assert_eq!(outcome.skipped[0].id, "s1");
+        let card = crate::manifest::read_card(&out.path().join(crate::manifest::CARD_FILE))?;
+        assert_eq!(card.provenance["skipped"][0]["id"], "s1");
         Ok(())
     }
 

@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::ValueEnum;
 use datasets::augment::{AugmentConfig, AugmentOptions, Preset, augment_dataset};
 
-use super::{DATASET_MARKERS, OnErrorArg, log_samples, open_dataset, report_skipped};
+use super::{DATASET_MARKERS, DatasetOutputArgs, log_samples, open_dataset, report_skipped};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::AtomicDir;
@@ -46,17 +46,8 @@ pub struct AugmentArgs {
     #[arg(long)]
     pub include_originals: bool,
 
-    /// What to do with a broken item: stop with its error, or skip it and count it.
-    #[arg(long, value_enum, default_value = "fail")]
-    pub on_error: OnErrorArg,
-
-    /// Dataset name in the card [default: the output folder's name].
-    #[arg(long)]
-    pub name: Option<String>,
-
-    /// How many items to log to rerun.
-    #[arg(long, value_name = "N", default_value_t = 16)]
-    pub log_samples: usize,
+    #[command(flatten)]
+    pub output: DatasetOutputArgs,
 }
 
 fn load_transforms(args: &AugmentArgs) -> Result<AugmentConfig> {
@@ -108,15 +99,12 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
         rayon::current_num_threads()
     ));
     let opts = AugmentOptions {
-        name: args
-            .name
-            .clone()
-            .unwrap_or_else(|| super::folder_name(&dest)),
+        name: args.output.dataset_name(&dest),
         config,
         copies: args.copies,
         include_originals: args.include_originals,
         seed: ctx.cli.seed,
-        on_error: args.on_error.into(),
+        on_error: args.output.on_error.into(),
     };
     let outcome = augment_dataset(&dataset, &opts, dir.path()).map_err(|e| {
         CliError::new(
@@ -130,7 +118,7 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
         &recording,
         dir.path(),
         &outcome.items,
-        args.log_samples,
+        args.output.log_samples,
         "augment",
     )?;
     recording.finish()?;

@@ -8,7 +8,7 @@ use datasets::import::{
     ClassMap, ImportOptions, ImportReport, LayoutOptions, SourceFormat, import,
 };
 
-use super::{DATASET_MARKERS, OnErrorArg, log_samples, report_skipped};
+use super::{DATASET_MARKERS, DatasetOutputArgs, log_samples, report_skipped};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::AtomicDir;
@@ -92,17 +92,8 @@ pub struct ImportArgs {
     #[arg(long, value_name = "DIR")]
     pub lane_masks: Option<PathBuf>,
 
-    /// What to do with a broken item: stop with its error, or skip it and count it.
-    #[arg(long, value_enum, default_value = "fail")]
-    pub on_error: OnErrorArg,
-
-    /// Dataset name in the card [default: the output folder's name].
-    #[arg(long)]
-    pub name: Option<String>,
-
-    /// How many items to log to rerun.
-    #[arg(long, value_name = "N", default_value_t = 16)]
-    pub log_samples: usize,
+    #[command(flatten)]
+    pub output: DatasetOutputArgs,
 }
 
 /// `0.9.13` < `0.9.14`: compares dotted numbers.
@@ -205,10 +196,7 @@ pub fn run(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         class_map.name
     ));
     let opts = ImportOptions {
-        name: args
-            .name
-            .clone()
-            .unwrap_or_else(|| super::folder_name(&dest)),
+        name: args.output.dataset_name(&dest),
         format,
         layout: LayoutOptions {
             root: args.source.clone(),
@@ -220,7 +208,7 @@ pub fn run(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         class_map,
         source_config,
         lane_masks: args.lane_masks.clone(),
-        on_error: args.on_error.into(),
+        on_error: args.output.on_error.into(),
     };
     let outcome = import(&opts, dir.path()).map_err(|e| {
         CliError::new(
@@ -234,7 +222,7 @@ pub fn run(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         &recording,
         dir.path(),
         &outcome.items,
-        args.log_samples,
+        args.output.log_samples,
         "import",
     )?;
     recording.finish()?;

@@ -62,6 +62,29 @@ pub const DATASET_MARKERS: crate::output::Markers = &[
     datasets::manifest::CARD_FILE,
 ];
 
+/// The options of commands that write a dataset from items that may be broken.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DatasetOutputArgs {
+    /// What to do with a broken item: stop with its error, or skip it and count it.
+    #[arg(long, value_enum, default_value = "fail")]
+    pub on_error: OnErrorArg,
+
+    /// Dataset name in the card [default: the output folder's name].
+    #[arg(long)]
+    pub name: Option<String>,
+
+    /// How many items to log to rerun.
+    #[arg(long, value_name = "N", default_value_t = 16)]
+    pub log_samples: usize,
+}
+
+impl DatasetOutputArgs {
+    /// `--name`, or the name of the output folder `dest`.
+    pub fn dataset_name(&self, dest: &std::path::Path) -> String {
+        self.name.clone().unwrap_or_else(|| folder_name(dest))
+    }
+}
+
 /// `--on-error`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum OnErrorArg {
