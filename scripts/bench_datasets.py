@@ -10,8 +10,8 @@
    beforehand (untimed), in memory, the same number of threads:
    - ours: `datasets/examples/bench_augment.rs` (release), a rayon pool of T threads;
    - albumentations (installed from PyPI when missing): the same five transforms in an
-     A.Compose with the mask, T forked worker processes each holding the images
-     (cv2.setNumThreads(1) in each), and also one process with cv2.setNumThreads(T).
+     A.Compose with the mask, T worker processes each holding the images (spawned; one
+     OpenCV thread each), and also one process with cv2.setNumThreads(T).
    One untimed warm-up run each, then RUNS timed runs; images per second, median.
 
 Usage (from the repository root, with ../shared/data beside it):
@@ -115,18 +115,20 @@ def augment_indices(indices):
     return done
 
 
-def worker_init():
+def worker_init(camvid, count):
     import cv2
     cv2.setNumThreads(1)
+    load_camvid(camvid, count)
 
 
-def bench_albumentations(runs, threads):
+def bench_albumentations(camvid, count, runs, threads):
     import cv2
     n = len(IMAGES)
     results = {}
-    # T forked processes, each holding the images (copy-on-write), one OpenCV thread each.
-    ctx = multiprocessing.get_context("fork")
-    with ctx.Pool(threads, initializer=worker_init) as pool:
+    # T worker processes, each loading the images itself (untimed), one OpenCV thread each.
+    # Spawned, not forked: forking after OpenCV has started its threads can deadlock.
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(threads, initializer=worker_init, initargs=(camvid, count)) as pool:
         chunks = [list(range(k, n, threads)) for k in range(threads)]
         rates = []
         for run in range(runs + 1):
@@ -170,6 +172,7 @@ def main():
     parser.add_argument("--pipeline", type=Path, default=target_dir() / "release/pipeline")
     parser.add_argument("--example", type=Path, default=target_dir() / "release/examples/bench_augment")
     parser.add_argument("--out", type=Path, default=ROOT / "docs/benchmarks/datasets.json")
+    parser.add_argument("--skip-generation", action="store_true")
     args = parser.parse_args()
     threads = [int(t) for t in args.threads.split(",")]
     for path in (args.pipeline, args.example):
@@ -189,13 +192,13 @@ def main():
         "albumentations": albumentations.__version__, "opencv": cv2.__version__,
         "generation": [], "augmentation": [],
     }
-    for t in threads:
+    for t in [] if args.skip_generation else threads:
         gen = bench_generation(args.pipeline, args.gen_count, args.gen_runs, t)
         report["generation"].append(gen)
         print(f"generate 256x256, {t} thread(s): {gen['median_images_per_second']:.1f} images/s", flush=True)
     for t in threads:
         ours = bench_ours(args.example, args.camvid, args.images, args.runs, t)
-        peer = bench_albumentations(args.runs, t)
+        peer = bench_albumentations(args.camvid, args.images, args.runs, t)
         best_peer = max(p["median_images_per_second"] for p in peer.values())
         row = {"threads": t, "ours": ours, "albumentations": peer,
                "ratio_to_best_albumentations": ours["median_images_per_second"] / best_peer}

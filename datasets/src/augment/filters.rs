@@ -205,7 +205,7 @@ pub fn gaussian_noise(image: &mut RgbImage, sigma: f64, seed: u64) {
         rng.fill_bytes(&mut bits[..chunk.len() * 2]);
         for (v, b) in chunk.iter_mut().zip(bits.chunks_exact(2)) {
             let z = table[usize::from(u16::from_le_bytes([b[0], b[1]]))];
-            *v = (f32::from(*v) + s * z).round().clamp(0.0, 255.0) as u8;
+            *v = super::colour::to_u8(f32::from(*v) + s * z);
         }
     }
 }

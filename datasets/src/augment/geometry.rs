@@ -189,9 +189,8 @@ impl Warp {
         self.source_points(|i, qx, qy| {
             // Bilinear between the four pixel centres around q.
             let (fx, fy) = (qx - 0.5, qy - 0.5);
-            let (x0, y0) = (fx.floor(), fy.floor());
-            let (ax, ay) = (fx - x0, fy - y0);
-            let (x0, y0) = (x0 as i32, y0 as i32);
+            let (x0, y0) = (floor_i32(fx), floor_i32(fy));
+            let (ax, ay) = (fx - x0 as f32, fy - y0 as f32);
             if x0 < -1 || y0 < -1 || x0 >= w || y0 >= h {
                 return;
             }
@@ -204,7 +203,7 @@ impl Warp {
             for k in 0..3 {
                 let top = a[k] + (b[k] - a[k]) * ax;
                 let bottom = c[k] + (d[k] - c[k]) * ax;
-                out[i * 3 + k] = (top + (bottom - top) * ay).round().clamp(0.0, 255.0) as u8;
+                out[i * 3 + k] = super::colour::to_u8(top + (bottom - top) * ay);
             }
         });
         RgbImage::from_raw(self.width, self.height, out).unwrap_or_default()
@@ -222,6 +221,12 @@ impl Warp {
         });
         GrayImage::from_raw(self.width, self.height, out).unwrap_or_default()
     }
+}
+
+/// `v.floor() as i32` without the libm call (see `colour::to_u8`).
+fn floor_i32(v: f32) -> i32 {
+    let t = v as i32;
+    t - i32::from((t as f32) > v)
 }
 
 /// An exact copy: output (x, y) takes input (sx·x + tx, sy·y + ty).
