@@ -9,20 +9,16 @@
 
 #![allow(clippy::print_stdout, clippy::unwrap_used)]
 
+mod common;
+
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use datasets::error::OnError;
 use datasets::import::{ClassMap, ImportOptions, LayoutOptions, SourceFormat, import};
 
 fn camvid_dir() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/segmentation/camvid");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        println!("skipped: {} is absent", dir.display());
-        None
-    }
+    common::shared_data("segmentation/camvid")
 }
 
 #[test]

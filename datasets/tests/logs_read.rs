@@ -6,6 +6,8 @@
 
 #![allow(clippy::print_stdout, clippy::unwrap_used)]
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -15,13 +17,7 @@ use datasets::logs::{Decoded, DecodedLog, Log, ReadOptions, read_decoded};
 use serde_json::{Value, json};
 
 fn logs_dir() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/logs");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        println!("skipped: {} is absent", dir.display());
-        None
-    }
+    common::shared_data("logs")
 }
 
 fn read(path: &Path) -> DecodedLog {
