@@ -70,6 +70,10 @@ def pytorch(args, ref, config):
     cfg = dict(config)
     model = ref.PspNet(cfg)
     params = sum(p.numel() for p in model.parameters())
+    # burn counts the batch-norm running statistics with the parameters; PyTorch keeps them
+    # as buffers. Both figures are reported; the networks must agree on the total.
+    running_stats = sum(b.numel() for n, b in model.named_buffers()
+                        if n.endswith("running_mean") or n.endswith("running_var"))
     x = torch.randn(1, 3, args.size, args.size)
 
     model.eval()
@@ -97,6 +101,7 @@ def pytorch(args, ref, config):
 
     train = median_ms(step, min(args.warmup, 1), args.train_runs)
     return {"torch": torch.__version__, "parameters": params,
+            "parameters_with_running_stats": params + running_stats,
             "inference_ms": {"median": inf[0], "min": inf[1], "max": inf[2], "runs": args.runs},
             "train_step_ms": {"median": train[0], "min": train[1], "max": train[2], "runs": args.train_runs}}
 
@@ -119,9 +124,9 @@ def main():
     ref = load_reference()
     burn, cmd = ours(args, extra)
     torch_figures = pytorch(args, ref, burn["config"])
-    if torch_figures["parameters"] != burn["parameters"]:
-        sys.exit(f"not the same network: {burn['parameters']} parameters in burn, "
-                 f"{torch_figures['parameters']} in PyTorch")
+    if torch_figures["parameters_with_running_stats"] != burn["parameters"]:
+        sys.exit(f"not the same network: {burn['parameters']} parameters and batch-norm statistics "
+                 f"in burn, {torch_figures['parameters_with_running_stats']} in PyTorch")
     b_inf, t_inf = burn["inference_ms"]["median"], torch_figures["inference_ms"]["median"]
     b_tr, t_tr = burn["train_step_ms"]["median"], torch_figures["train_step_ms"]["median"]
     result = {

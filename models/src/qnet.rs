@@ -413,6 +413,27 @@ mod tests {
         Ok(())
     }
 
+    /// The parameter counts of the presets at 16 × 84 × 84 layers, 6 scalars and 3 actions,
+    /// counted by hand layer by layer (weights + biases); the PyTorch network of
+    /// `scripts/bench_qnet.py` has the same counts, so the speed comparison is like for like.
+    #[test]
+    fn preset_parameter_counts() -> Result<(), String> {
+        let device = Device::flex();
+        let convs = (16 * 32 * 8 * 8 + 32) + (32 * 64 * 4 * 4 + 64) + (64 * 64 * 3 * 3 + 64);
+        let head = 256 * 3 + 3;
+        // default: flatten 64 × 7 × 7, a 64-wide scalar layer, one 256-wide hidden layer.
+        let default = convs + (6 * 64 + 64) + ((3136 + 64) * 256 + 256) + head;
+        // its: 2 × 2 average pool (256 features), scalars joined as they are.
+        let its = convs + ((256 + 6) * 256 + 256) + head;
+        assert_eq!((default, its), (923_235, 170_659));
+        let count = |config: QNetworkConfig| -> Result<usize, String> {
+            Ok(config.init(&spec(), 3, 1, &device)?.num_params())
+        };
+        assert_eq!(count(QNetworkConfig::default())?, default);
+        assert_eq!(count(QNetworkConfig::its())?, its);
+        Ok(())
+    }
+
     #[test]
     fn same_seed_same_network_other_seed_other_network() -> Result<(), String> {
         let device = Device::flex();

@@ -71,6 +71,7 @@ pub struct BenchReport {
     pub size: usize,
     pub batch: usize,
     pub threads: usize,
+    /// Every tensor of the record: weights, biases and the batch-norm running statistics.
     pub parameters: usize,
     /// Convolution FLOPs (2 × multiply-accumulates) of one image's forward pass.
     pub gflops_per_image: f64,
@@ -243,7 +244,7 @@ pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
         ctx.ui.result(&serde_json::to_string_pretty(&report)?);
     } else {
         let mut text = format!(
-            "parameters {}, {:.2} GFLOPs per {}x{} image\ninference batch {}, {} threads: median {:.1} ms (min {:.1}, max {:.1}, {} runs), {:.1} images/s",
+            "parameters {} (batch-norm running statistics included), {:.2} GFLOPs per {}x{} image\ninference batch {}, {} threads: median {:.1} ms (min {:.1}, max {:.1}, {} runs), {:.1} images/s",
             report.parameters,
             report.gflops_per_image,
             args.size,
