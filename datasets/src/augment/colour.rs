@@ -7,7 +7,7 @@ use image::RgbImage;
 /// cast instead of `round()`: the same rounding here, but baseline x86-64 has no rounding
 /// instruction, so `round()` is a libm call per value, a sixth of the augmentation's time.
 pub(crate) fn to_u8(v: f32) -> u8 {
-    if v > 0.0 { (v + 0.5) as u8 } else { 0 }
+    (v + 0.5) as u8
 }
 
 /// Applies a per-value lookup table to every channel.

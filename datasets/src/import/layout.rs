@@ -273,17 +273,22 @@ fn folders(opts: &LayoutOptions) -> Result<Vec<SourcePair>> {
     if !labels.is_dir() {
         return Err(DatasetError::invalid(&labels, "is not a label folder"));
     }
-    let label_files = sorted_files(&labels)?;
+    // Labels by file stem (the first in name order where two share one); each image takes
+    // its own, and what is left over has no image.
+    let mut labels_by_stem: std::collections::BTreeMap<String, PathBuf> = sorted_files(&labels)?
+        .into_iter()
+        .rev()
+        .filter(|p| is_image_file(p))
+        .map(|p| (stem(&p), p))
+        .collect();
     let mut pairs = Vec::new();
     for image in sorted_files(&images)?
         .into_iter()
         .filter(|p| is_image_file(p))
     {
         let name = stem(&image);
-        let label = label_files
-            .iter()
-            .find(|l| stem(l) == name)
-            .cloned()
+        let label = labels_by_stem
+            .remove(&name)
             .unwrap_or_else(|| labels.join(format!("{name}.png")));
         pairs.push(SourcePair {
             id: sanitize_id(&name),
@@ -294,18 +299,13 @@ fn folders(opts: &LayoutOptions) -> Result<Vec<SourcePair>> {
     }
     // A label without an image is a broken item, not one to drop silently: it is listed
     // with the image path it lacks, so the import reports it (error or counted skip).
-    let image_stems: std::collections::BTreeSet<String> =
-        pairs.iter().map(|p| stem(&p.image)).collect();
-    for label in label_files.into_iter().filter(|p| is_image_file(p)) {
-        let name = stem(&label);
-        if !image_stems.contains(&name) {
-            pairs.push(SourcePair {
-                id: sanitize_id(&name),
-                image: images.join(&name),
-                label,
-                split: None,
-            });
-        }
+    for (name, label) in labels_by_stem {
+        pairs.push(SourcePair {
+            id: sanitize_id(&name),
+            image: images.join(&name),
+            label,
+            split: None,
+        });
     }
     pairs.sort_by(|a, b| a.id.cmp(&b.id));
     Ok(pairs)

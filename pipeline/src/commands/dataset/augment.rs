@@ -6,11 +6,10 @@ use anyhow::Result;
 use clap::ValueEnum;
 use datasets::augment::{AugmentConfig, AugmentOptions, Preset, augment_dataset};
 
-use super::{DATASET_MARKERS, DatasetOutputArgs, log_samples, open_dataset, report_skipped};
+use super::{DATASET_MARKERS, DatasetOutputArgs, open_dataset, record_samples, report_skipped};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::AtomicDir;
-use crate::recording::Recording;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum PresetArg {
@@ -113,15 +112,13 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
         )
     })?;
     progress.step("logging samples");
-    let recording = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
-    log_samples(
-        &recording,
+    record_samples(
+        ctx,
         dir.path(),
         &outcome.items,
         args.output.log_samples,
         "augment",
     )?;
-    recording.finish()?;
     drop(progress);
     report_skipped(ctx, &outcome.skipped);
     let out = dir.commit()?;

@@ -8,11 +8,10 @@ use datasets::import::{
     ClassMap, ImportOptions, ImportReport, LayoutOptions, SourceFormat, import,
 };
 
-use super::{DATASET_MARKERS, DatasetOutputArgs, log_samples, report_skipped};
+use super::{DATASET_MARKERS, DatasetOutputArgs, record_samples, report_skipped};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::AtomicDir;
-use crate::recording::Recording;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum FormatArg {
@@ -217,15 +216,13 @@ pub fn run(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         )
     })?;
     progress.step("logging samples");
-    let recording = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
-    log_samples(
-        &recording,
+    record_samples(
+        ctx,
         dir.path(),
         &outcome.items,
         args.output.log_samples,
         "import",
     )?;
-    recording.finish()?;
     drop(progress);
     report_skipped(ctx, &outcome.report.skipped);
     let out = dir.commit()?;

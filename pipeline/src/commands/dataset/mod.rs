@@ -124,23 +124,24 @@ pub fn report_skipped(ctx: &Context<'_>, skipped: &[datasets::error::Skipped]) {
     }
 }
 
-/// Logs the class table and the first `n` items of a written dataset folder to rerun
-/// (`dataset/<name>/image` and `/label`, one `frame` per item).
-pub fn log_samples(
-    recording: &crate::recording::Recording,
+/// Records the class table and the first `n` items of a dataset folder being written
+/// (`dataset/<name>/image` and `/label`, one `frame` per item) in the command's rerun
+/// recording (saved into `dir` by default).
+pub fn record_samples(
+    ctx: &Context<'_>,
     dir: &std::path::Path,
     items: &[datasets::Item],
     n: usize,
     name: &str,
 ) -> Result<()> {
-    let Some(stream) = recording.stream() else {
-        return Ok(());
-    };
-    crate::recording::log_class_context(stream)?;
-    for (frame, item) in items.iter().take(n).enumerate() {
-        let image = datasets::image_io::read_rgb(&dir.join(&item.image))?;
-        let label = datasets::image_io::read_label(&dir.join(&item.label))?;
-        crate::recording::log_sample(stream, name, frame as i64, &image, &label)?;
+    let recording = crate::recording::Recording::open(&ctx.cli.rerun, Some(dir))?;
+    if let Some(stream) = recording.stream() {
+        crate::recording::log_class_context(stream)?;
+        for (frame, item) in items.iter().take(n).enumerate() {
+            let image = datasets::image_io::read_rgb(&dir.join(&item.image))?;
+            let label = datasets::image_io::read_label(&dir.join(&item.label))?;
+            crate::recording::log_sample(stream, name, frame as i64, &image, &label)?;
+        }
     }
-    Ok(())
+    recording.finish()
 }
