@@ -29,6 +29,9 @@ pub struct Config {
     /// `[agent.dqn]` (hyper-parameters) and `[agent.task]` (the task's settings).
     #[serde(default)]
     pub agent: crate::commands::agent::AgentConfig,
+    /// `[run]`: the maps and stage sizes of `pipeline run`.
+    #[serde(default)]
+    pub run: crate::commands::run::settings::RunConfig,
     /// The folder of the file, for its relative paths (not part of the TOML).
     #[serde(skip)]
     pub base_dir: PathBuf,

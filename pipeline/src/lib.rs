@@ -14,20 +14,36 @@ pub mod ui;
 pub use cli::Cli;
 pub use error::CliError;
 
+/// The config file `pipeline run` reads when no --config is given.
+pub const DEFAULT_RUN_CONFIG: &str = "pipeline.toml";
+
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     let ui = ui::Ui::new(cli.verbosity());
-    let config = config::Config::load(cli.config.as_deref())?;
+    let default_run_config = std::path::Path::new(DEFAULT_RUN_CONFIG);
+    let config_path = match (&cli.config, &cli.command) {
+        (Some(path), _) => Some(path.as_path()),
+        (None, cli::Group::Run(_)) if default_run_config.is_file() => Some(default_run_config),
+        (None, _) => None,
+    };
+    let config = config::Config::load(config_path)?;
     let ctx = commands::Context {
         cli: &cli,
         config: &config,
         ui: &ui,
+        recording: None,
     };
-    match &cli.command {
-        cli::Group::Map { command } => commands::map::run(&ctx, command),
-        cli::Group::Agent { command } => commands::agent::run(&ctx, command),
-        cli::Group::Dataset { command } => commands::dataset::run(&ctx, command),
-        cli::Group::Logs { command } => commands::logs::run(&ctx, command),
-        cli::Group::Segmenter { command } => commands::segmenter::run(&ctx, command),
+    dispatch(&ctx)
+}
+
+/// Runs the command of `ctx.cli` (`pipeline run` calls it for each stage's commands).
+pub fn dispatch(ctx: &commands::Context<'_>) -> anyhow::Result<()> {
+    match &ctx.cli.command {
+        cli::Group::Map { command } => commands::map::run(ctx, command),
+        cli::Group::Agent { command } => commands::agent::run(ctx, command),
+        cli::Group::Dataset { command } => commands::dataset::run(ctx, command),
+        cli::Group::Logs { command } => commands::logs::run(ctx, command),
+        cli::Group::Segmenter { command } => commands::segmenter::run(ctx, command),
+        cli::Group::Run(args) => commands::run::run(ctx, args),
     }
 }

@@ -15,6 +15,11 @@
 //! | `world/map/stop_lines` | stop and give-way lines, red |
 //! | `world/map/markings` | centre lines (yellow), lane dividers and edges (white) |
 //!
+//! Inside `pipeline run` every stage logs into the run's one recording, each under its own
+//! entity prefix (`maps/campus/world/map/...`, `segmenter/...`): commands log through
+//! [`Stream`], which puts its prefix in front of every entity path, and open their recording
+//! with [`crate::commands::Context::open_recording`], which hands out the shared one.
+//!
 //! A recording's bytes are not reproducible (rerun stamps chunk ids and times), unlike the
 //! other outputs.
 
@@ -23,7 +28,10 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use maps::geometry::Point;
 use maps::{Map, MarkingKind, StopKind};
-use rerun::{Color, LineStrips3D, Radius, RecordingStream, RecordingStreamBuilder};
+use rerun::{
+    AsComponents, Color, LineStrips3D, Radius, RecordingStream, RecordingStreamBuilder,
+    RecordingStreamResult, TimelineName,
+};
 
 use crate::cli::RerunMode;
 use crate::error::CliError;
@@ -31,10 +39,72 @@ use crate::error::CliError;
 /// File name of the recording inside an output folder.
 pub const RECORDING_FILE: &str = "recording.rrd";
 
+/// A rerun stream whose entity paths all sit under a prefix (empty: none).
+#[derive(Debug, Clone)]
+pub struct Stream {
+    inner: RecordingStream,
+    prefix: String,
+}
+
+impl Stream {
+    /// The whole stream, no prefix.
+    pub fn new(inner: RecordingStream) -> Stream {
+        Stream {
+            inner,
+            prefix: String::new(),
+        }
+    }
+
+    /// The same stream with `prefix` (itself under this stream's prefix) before every path.
+    pub fn under(&self, prefix: &str) -> Stream {
+        Stream {
+            inner: self.inner.clone(),
+            prefix: self.path(prefix),
+        }
+    }
+
+    fn path(&self, entity: &str) -> String {
+        match (self.prefix.is_empty(), entity.is_empty()) {
+            (true, _) => entity.to_owned(),
+            (false, true) => self.prefix.clone(),
+            (false, false) => format!("{}/{entity}", self.prefix),
+        }
+    }
+
+    pub fn log<AS: ?Sized + AsComponents>(
+        &self,
+        entity: impl AsRef<str>,
+        archetype: &AS,
+    ) -> RecordingStreamResult<()> {
+        self.inner.log(self.path(entity.as_ref()), archetype)
+    }
+
+    pub fn log_static<AS: ?Sized + AsComponents>(
+        &self,
+        entity: impl AsRef<str>,
+        archetype: &AS,
+    ) -> RecordingStreamResult<()> {
+        self.inner.log_static(self.path(entity.as_ref()), archetype)
+    }
+
+    pub fn set_time_sequence(&self, timeline: impl Into<TimelineName>, sequence: i64) {
+        self.inner.set_time_sequence(timeline, sequence);
+    }
+
+    pub fn set_duration_secs(&self, timeline: impl Into<TimelineName>, secs: f64) {
+        self.inner.set_duration_secs(timeline, secs);
+    }
+
+    /// Clears this thread's time cursor (a new stage starts its timelines afresh).
+    pub fn reset_time(&self) {
+        self.inner.reset_time();
+    }
+}
+
 /// An open recording (or none, with `--rerun off`).
 #[derive(Debug)]
 pub struct Recording {
-    stream: Option<RecordingStream>,
+    stream: Option<Stream>,
     mode: RerunMode,
 }
 
@@ -74,9 +144,20 @@ impl Recording {
             }
         };
         Ok(Recording {
-            stream,
+            stream: stream.map(Stream::new),
             mode: mode.clone(),
         })
+    }
+
+    /// A view into a larger recording: what each stage of `pipeline run` logs into. Its
+    /// [`finish`](Self::finish) flushes; the sink stays open while the owner holds it.
+    pub fn shared(stream: &Stream, mode: &RerunMode) -> Recording {
+        let stream = stream.clone();
+        stream.reset_time();
+        Recording {
+            stream: Some(stream),
+            mode: mode.clone(),
+        }
     }
 
     pub fn is_on(&self) -> bool {
@@ -84,14 +165,14 @@ impl Recording {
     }
 
     /// The stream, for logging.
-    pub fn stream(&self) -> Option<&RecordingStream> {
+    pub fn stream(&self) -> Option<&Stream> {
         self.stream.as_ref()
     }
 
     /// Flushes everything and closes the sink (writes the `.rrd` footer).
     pub fn finish(mut self) -> Result<()> {
         if let Some(stream) = self.stream.take() {
-            stream.flush_blocking().map_err(|e| match &self.mode {
+            stream.inner.flush_blocking().map_err(|e| match &self.mode {
                 RerunMode::Connect(url) => CliError::new(
                     format!("rerun viewer at {url}: {e}"),
                     "start a viewer first (`rerun`), check the address, or use --rerun save",
@@ -105,7 +186,8 @@ impl Recording {
                     "check free disk space, or use --rerun off",
                 ),
             })?;
-            // Dropping the last handle joins the batcher and the file writer.
+            // Dropping the last handle joins the batcher and the file writer (a shared
+            // recording's owner holds another handle, so its sink stays open).
             drop(stream);
         }
         Ok(())
@@ -150,7 +232,7 @@ fn class_color(highway: &str) -> Color {
 }
 
 /// Logs a map under `world/map/...`, static.
-pub fn log_map(rec: &RecordingStream, map: &Map) -> Result<()> {
+pub fn log_map(rec: &Stream, map: &Map) -> Result<()> {
     let err = |what: &str| format!("rerun: cannot log {what}");
     rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())
         .with_context(|| err("world"))?;
@@ -273,13 +355,13 @@ pub fn log_map(rec: &RecordingStream, map: &Map) -> Result<()> {
 pub const DATASET_ENTITY: &str = "dataset";
 
 /// Logs the class table (0-4 and 255 ignore) as a static AnnotationContext on `dataset`.
-pub fn log_class_context(rec: &RecordingStream) -> Result<()> {
+pub fn log_class_context(rec: &Stream) -> Result<()> {
     log_class_context_at(rec, DATASET_ENTITY)
 }
 
 /// Logs the class table as a static AnnotationContext on `entity`, so every segmentation
 /// image below it gets the class names and colours.
-pub fn log_class_context_at(rec: &RecordingStream, entity: &str) -> Result<()> {
+pub fn log_class_context_at(rec: &Stream, entity: &str) -> Result<()> {
     let table = datasets::classes::class_table();
     let context = rerun::AnnotationContext::new(table.iter().map(|c| {
         let [r, g, b] = c.color;
@@ -295,7 +377,7 @@ pub fn log_class_context_at(rec: &RecordingStream, entity: &str) -> Result<()> {
 }
 
 /// Logs an RGB image under `entity` at the current time.
-pub fn log_rgb(rec: &RecordingStream, entity: &str, image: &image::RgbImage) -> Result<()> {
+pub fn log_rgb(rec: &Stream, entity: &str, image: &image::RgbImage) -> Result<()> {
     let (w, h) = image.dimensions();
     rec.log(
         entity,
@@ -307,11 +389,7 @@ pub fn log_rgb(rec: &RecordingStream, entity: &str, image: &image::RgbImage) -> 
 
 /// Logs a label of class ids as a SegmentationImage under `entity` at the current time
 /// (coloured by the class table logged above it).
-pub fn log_segmentation(
-    rec: &RecordingStream,
-    entity: &str,
-    label: &image::GrayImage,
-) -> Result<()> {
+pub fn log_segmentation(rec: &Stream, entity: &str, label: &image::GrayImage) -> Result<()> {
     let (w, h) = label.dimensions();
     rec.log(
         entity,
@@ -328,7 +406,7 @@ pub fn log_segmentation(
 /// `dataset/<name>/image` and its label as a SegmentationImage under `dataset/<name>/label`.
 /// Call [`log_class_context`] once first.
 pub fn log_sample(
-    rec: &RecordingStream,
+    rec: &Stream,
     name: &str,
     frame: i64,
     image: &image::RgbImage,
@@ -340,7 +418,7 @@ pub fn log_sample(
 }
 
 /// Logs a route's path under `world/route`.
-pub fn log_route(rec: &RecordingStream, points: &[Point]) -> Result<()> {
+pub fn log_route(rec: &Stream, points: &[Point]) -> Result<()> {
     rec.log_static(
         "world/route",
         &LineStrips3D::new([strip(points, 0.1)])
@@ -352,7 +430,7 @@ pub fn log_route(rec: &RecordingStream, points: &[Point]) -> Result<()> {
 }
 
 /// Logs scalar series (`(entity, value)`) at the current time (training curves, Q-values).
-pub fn log_scalars(rec: &RecordingStream, series: &[(&str, f64)]) -> Result<()> {
+pub fn log_scalars(rec: &Stream, series: &[(&str, f64)]) -> Result<()> {
     for (entity, value) in series {
         rec.log(*entity, &rerun::Scalars::single(*value))
             .with_context(|| format!("rerun: cannot log {entity}"))?;
@@ -361,12 +439,7 @@ pub fn log_scalars(rec: &RecordingStream, series: &[(&str, f64)]) -> Result<()> 
 }
 
 /// Logs road users as boxes (1.5 m tall, on the ground) under `entity`, the ego highlighted.
-pub fn log_actors(
-    rec: &RecordingStream,
-    entity: &str,
-    actors: &[sim::Actor],
-    ego: usize,
-) -> Result<()> {
+pub fn log_actors(rec: &Stream, entity: &str, actors: &[sim::Actor], ego: usize) -> Result<()> {
     let centres = actors
         .iter()
         .map(|a| [a.position.x as f32, a.position.y as f32, 0.75]);
@@ -395,7 +468,7 @@ pub fn log_actors(
 }
 
 /// Logs a path on the ground (an ego's trajectory so far) under `entity`.
-pub fn log_path(rec: &RecordingStream, entity: &str, points: &[Point]) -> Result<()> {
+pub fn log_path(rec: &Stream, entity: &str, points: &[Point]) -> Result<()> {
     rec.log(
         entity,
         &LineStrips3D::new([strip(points, 0.2)])
@@ -409,7 +482,7 @@ pub fn log_path(rec: &RecordingStream, entity: &str, points: &[Point]) -> Result
 /// Logs a layer-major `u8` frame (`[layer, height, width]`) as one grey image per layer under
 /// `entity/<layer name>`.
 pub fn log_layers(
-    rec: &RecordingStream,
+    rec: &Stream,
     entity: &str,
     frame: &[u8],
     names: &[&str],

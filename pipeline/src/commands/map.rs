@@ -21,7 +21,7 @@ use crate::cli::{
 use crate::clip::{parse_bbox, parse_lat_lon, parse_pair, read_polygon_file};
 use crate::error::{CliError, FileRole, map_error};
 use crate::output::{AtomicDir, Markers, write_file_atomic};
-use crate::recording::{self, Recording};
+use crate::recording;
 
 /// The files `map import` writes.
 pub const MAP_JSON: &str = "map.json";
@@ -329,7 +329,7 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
             if ctx.cli.rerun == RerunMode::Off {
                 return Ok(());
             }
-            let rec = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
+            let rec = ctx.open_recording(Some(dir.path()))?;
             if let Some(stream) = rec.stream() {
                 recording::log_map(stream, &map)?;
             }
@@ -604,7 +604,7 @@ fn route(ctx: &Context<'_>, args: &RouteArgs) -> Result<()> {
         .map_err(|e| map_error(&file, e, FileRole::MapFile))?;
 
     if matches!(ctx.cli.rerun, RerunMode::Spawn | RerunMode::Connect(_)) {
-        let rec = Recording::open(&ctx.cli.rerun, None)?;
+        let rec = ctx.open_recording(None)?;
         if let Some(stream) = rec.stream() {
             recording::log_map(stream, &map)?;
             let path: Vec<Point> = route.waypoints.iter().map(|w| w.position).collect();
@@ -680,6 +680,7 @@ mod tests {
             cli: &cli,
             config: &config,
             ui: &ui,
+            recording: None,
         };
         let r = resolve_import_options(&ctx, import_args(&cli))?;
         assert_eq!(r.options.profile.name, "passenger");
@@ -704,6 +705,7 @@ mod tests {
             cli: &cli,
             config: &defaults,
             ui: &ui,
+            recording: None,
         };
         let r = resolve_import_options(&ctx, import_args(&cli))?;
         assert_eq!(r.options.profile.name, "car");
@@ -724,6 +726,7 @@ mod tests {
             cli: &cli,
             config: &defaults,
             ui: &ui,
+            recording: None,
         };
         assert!(resolve_import_options(&ctx, import_args(&cli)).is_err());
         Ok(())

@@ -368,6 +368,12 @@ impl RoundaboutInsertion {
         })
     }
 
+    /// The bird's-eye renderer of the current episode's roundabout: what draws the layers,
+    /// so a scene rebuilt elsewhere (from a recorded log) is drawn exactly the same way.
+    pub fn renderer(&self) -> &BevRenderer {
+        &self.setup.roundabouts[self.roundabout].1
+    }
+
     pub fn summary(&self) -> EpisodeSummary {
         EpisodeSummary {
             outcome: self.outcome.unwrap_or(Outcome::TimeOver),

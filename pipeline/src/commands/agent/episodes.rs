@@ -8,10 +8,10 @@
 
 use std::sync::Arc;
 
+use crate::recording::Stream;
 use anyhow::{Context as _, Result};
 use models::dqn::greedy_action;
 use models::policy::QPolicy;
-use rerun::RecordingStream;
 use sim::Env;
 use sim::eval::{Condition, EVAL_STAGE};
 use sim::seed::derive_seed;
@@ -22,7 +22,7 @@ use crate::recording::{log_actors, log_layers, log_path, log_scalars};
 /// Logs `count` greedy episodes of `policy` under `condition`: the same episodes (seeds)
 /// as the first `count` of an evaluation with `seed`.
 pub fn record(
-    rec: &RecordingStream,
+    rec: &Stream,
     setup: &Arc<InsertionSetup>,
     policy: &QPolicy,
     condition: Condition,

@@ -18,7 +18,6 @@ use super::{EvalArgs, episodes, insertion_setup, load_or_import_map};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
-use crate::recording::Recording;
 
 pub const EVAL_JSON: &str = "eval.json";
 pub const EVAL_MD: &str = "eval.md";
@@ -165,7 +164,7 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let dir = AtomicDir::create(&out, EVAL_MARKERS)?;
     write_json(&dir.path().join(EVAL_JSON), &report)?;
     write_file_atomic(&dir.path().join(EVAL_MD), table.as_bytes())?;
-    let recording = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
+    let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream()
         && args.record_episodes > 0
     {

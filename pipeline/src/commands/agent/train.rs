@@ -12,12 +12,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use crate::recording::Stream;
 use anyhow::{Context as _, Result};
 use models::ModelError;
 use models::dqn::{
     AGENT_FILE, Checkpoint, EpisodeRecord, LossRecord, OutcomeName, TrainObserver, TrainState,
 };
-use rerun::RecordingStream;
 use serde::Serialize;
 use sim::eval::Condition;
 use sim::tasks::RoundaboutInsertion;
@@ -27,7 +27,6 @@ use super::{TASK_FILE, TaskRecord, TrainArgs, episodes, insertion_setup, load_or
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
-use crate::recording::Recording;
 use crate::ui::Progress;
 
 /// A folder holding any of these is an earlier agent that may be replaced.
@@ -92,7 +91,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     };
 
     let dir = AtomicDir::create(&out, AGENT_MARKERS)?;
-    let recording = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
+    let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream() {
         crate::recording::log_map(rec, setup.map())?;
         if let Some((checkpoint, _)) = &resume {
@@ -260,7 +259,7 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
 /// Progress line, rerun curves and checkpoints of a training run.
 struct TrainProgress<'a, 'b> {
     progress: &'a mut Progress<'b>,
-    recording: Option<&'a RecordingStream>,
+    recording: Option<&'a Stream>,
     partial: PathBuf,
     task: &'a TaskRecord,
     total_steps: u64,
@@ -367,7 +366,7 @@ impl TrainObserver for TrainProgress<'_, '_> {
 }
 
 /// The curves of an earlier part of a resumed run, so the recording shows the whole run.
-fn log_history(rec: &RecordingStream, state: &TrainState) -> Result<()> {
+fn log_history(rec: &Stream, state: &TrainState) -> Result<()> {
     let mut recent: VecDeque<OutcomeName> = VecDeque::with_capacity(RATE_WINDOW);
     for record in &state.episode_history {
         if recent.len() == RATE_WINDOW {
@@ -390,7 +389,7 @@ fn log_history(rec: &RecordingStream, state: &TrainState) -> Result<()> {
     Ok(())
 }
 
-fn log_episode(rec: &RecordingStream, record: &EpisodeRecord, rates: &[(&str, f64)]) -> Result<()> {
+fn log_episode(rec: &Stream, record: &EpisodeRecord, rates: &[(&str, f64)]) -> Result<()> {
     rec.set_time_sequence("step", record.step as i64);
     let mut scalars = vec![
         ("agent/train/return", record.episode_return),
@@ -405,7 +404,7 @@ fn log_episode(rec: &RecordingStream, record: &EpisodeRecord, rates: &[(&str, f6
     crate::recording::log_scalars(rec, &scalars)
 }
 
-fn log_losses(rec: &RecordingStream, record: &LossRecord) -> Result<()> {
+fn log_losses(rec: &Stream, record: &LossRecord) -> Result<()> {
     rec.set_time_sequence("step", record.step as i64);
     crate::recording::log_scalars(
         rec,

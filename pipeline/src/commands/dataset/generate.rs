@@ -26,7 +26,7 @@ use crate::commands::Context;
 use crate::commands::map::load_map;
 use crate::error::{CliError, FileRole, map_error};
 use crate::output::{AtomicDir, Markers};
-use crate::recording::{self, Recording};
+use crate::recording;
 
 /// The map used when `--map` is not given (bundled with the repository).
 pub const DEFAULT_MAP: &str = "data/osm/northwestern_nu.osm.pbf";
@@ -319,7 +319,7 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
         .map_err(|e| CliError::new(e.to_string(), "check free disk space and permissions"))?;
 
     if ctx.cli.rerun != crate::cli::RerunMode::Off {
-        let rec = Recording::open(&ctx.cli.rerun, Some(dir.path()))?;
+        let rec = ctx.open_recording(Some(dir.path()))?;
         if let Some(stream) = rec.stream() {
             recording::log_class_context(stream)?;
             for (frame, (_id, (image, label))) in samples.iter().enumerate() {

@@ -134,7 +134,7 @@ pub fn record_samples(
     n: usize,
     name: &str,
 ) -> Result<()> {
-    let recording = crate::recording::Recording::open(&ctx.cli.rerun, Some(dir))?;
+    let recording = ctx.open_recording(Some(dir))?;
     if let Some(stream) = recording.stream() {
         crate::recording::log_class_context(stream)?;
         for (frame, item) in items.iter().take(n).enumerate() {

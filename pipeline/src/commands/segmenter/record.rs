@@ -10,10 +10,10 @@
 //! A resumed run logs the curves it kept (`curves.jsonl`) first, so the new recording holds
 //! the whole run.
 
+use crate::recording::Stream;
 use anyhow::Result;
 use models::segmenter::eval::{Prediction, class_names};
 use models::segmenter::train::{CurvePoint, EpochPoint, StepPoint, TrainObserver};
-use rerun::RecordingStream;
 
 use crate::recording::{Recording, log_class_context_at, log_rgb, log_scalars, log_segmentation};
 use crate::ui::Progress;
@@ -23,7 +23,7 @@ pub const SEGMENTER_ENTITY: &str = "segmenter";
 
 /// The training run's observer: progress lines and rerun.
 pub struct TrainRecorder<'a, 'p> {
-    rec: Option<&'a RecordingStream>,
+    rec: Option<&'a Stream>,
     progress: &'a mut Progress<'p>,
     classes: Vec<String>,
     /// The first rerun error; training goes on without the recording, and the error is
@@ -64,7 +64,7 @@ impl<'a, 'p> TrainRecorder<'a, 'p> {
         self.error.map_or(Ok(()), Err)
     }
 
-    fn log(&mut self, f: impl FnOnce(&RecordingStream, &[String]) -> Result<()>) {
+    fn log(&mut self, f: impl FnOnce(&Stream, &[String]) -> Result<()>) {
         if self.error.is_some() {
             return;
         }
@@ -76,7 +76,7 @@ impl<'a, 'p> TrainRecorder<'a, 'p> {
     }
 }
 
-fn log_step(rec: &RecordingStream, p: &StepPoint) -> Result<()> {
+fn log_step(rec: &Stream, p: &StepPoint) -> Result<()> {
     rec.set_time_sequence("step", p.step as i64);
     log_scalars(
         rec,
@@ -87,7 +87,7 @@ fn log_step(rec: &RecordingStream, p: &StepPoint) -> Result<()> {
     )
 }
 
-fn log_epoch(rec: &RecordingStream, p: &EpochPoint, classes: &[String]) -> Result<()> {
+fn log_epoch(rec: &Stream, p: &EpochPoint, classes: &[String]) -> Result<()> {
     rec.set_time_sequence("step", p.step as i64);
     rec.set_time_sequence("epoch", p.epoch as i64);
     let mut series: Vec<(String, f64)> = vec![
@@ -107,7 +107,7 @@ fn log_epoch(rec: &RecordingStream, p: &EpochPoint, classes: &[String]) -> Resul
     log_scalars(rec, &refs)
 }
 
-fn log_previews(rec: &RecordingStream, previews: &[Prediction]) -> Result<()> {
+fn log_previews(rec: &Stream, previews: &[Prediction]) -> Result<()> {
     for (i, p) in previews.iter().enumerate() {
         let base = format!("{SEGMENTER_ENTITY}/val/images/{i}");
         log_rgb(rec, &format!("{base}/image"), &p.sample.image)?;

@@ -12,7 +12,6 @@ use models::segmenter::train::{StopReason, TRAIN_CONFIG_FILE, TrainData, Trainin
 use super::record::TrainRecorder;
 use super::{Context, cpu, open_sources, parse_source, segmenter_error, with_threads};
 use crate::error::CliError;
-use crate::recording::Recording;
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -256,7 +255,7 @@ pub fn run(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     };
     prepare_run_dir(&out, args.resume)?;
     // A resumed session writes a new recording and logs the curves so far into it first.
-    let recording = Recording::open(&ctx.cli.rerun, Some(&out))?;
+    let recording = ctx.open_recording(Some(&out))?;
     let mut progress = ctx.ui.progress("segmenter train");
     let mut recorder = TrainRecorder::new(&recording, &mut progress, config.model.classes)?;
     let device = cpu();

@@ -1,0 +1,192 @@
+//! `report.md`: each stage's key figures, read from the files its commands wrote, with
+//! links to the pictures they made. Written after every `pipeline run`, skipped stages
+//! included (their outputs are still there).
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use serde_json::Value;
+
+use super::manifest::Manifest;
+use super::simlog::PROJECTION_JSON;
+use super::stages::{
+    AGENT_EVAL, AGENT_MODEL, AUGMENTED, CAMPUS_MAP, GENERATED, ROUNDABOUT_MAP, SEGMENTER_EVAL,
+    SEGMENTER_MODEL, SIMULATED_LOG, StageName,
+};
+use super::{MANIFEST_FILE, StageOutcome};
+use crate::output::write_file_atomic;
+use crate::recording::RECORDING_FILE;
+
+pub const REPORT_FILE: &str = "report.md";
+
+fn json(path: &Path) -> Option<Value> {
+    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
+}
+
+/// A number at a JSON pointer, formatted, or "n/a".
+fn number(v: &Option<Value>, pointer: &str, decimals: usize) -> String {
+    v.as_ref()
+        .and_then(|v| v.pointer(pointer))
+        .and_then(Value::as_f64)
+        .map_or("n/a".into(), |x| format!("{x:.decimals$}"))
+}
+
+fn lines_of(path: &Path) -> Option<usize> {
+    std::fs::read_to_string(path)
+        .ok()
+        .map(|t| t.lines().filter(|l| !l.trim().is_empty()).count())
+}
+
+pub fn write(
+    run_dir: &Path,
+    manifest: &Manifest,
+    outcomes: &BTreeMap<StageName, StageOutcome>,
+    profile: &str,
+) -> Result<PathBuf> {
+    let mut md = String::new();
+    let _ = writeln!(md, "# Pipeline run ({profile} profile)\n");
+    let _ = writeln!(
+        md,
+        "Run folder `{}`; stage inputs, settings and output hashes in [`{MANIFEST_FILE}`]({MANIFEST_FILE}); \
+         the stages run by this invocation are in [`{RECORDING_FILE}`]({RECORDING_FILE}) (`rerun {RECORDING_FILE}`).\n",
+        run_dir.display()
+    );
+    let _ = writeln!(
+        md,
+        "| stage | this run | last run took |\n| --- | --- | ---: |"
+    );
+    for (stage, outcome) in outcomes {
+        let status = match outcome {
+            StageOutcome::Ran => "ran",
+            StageOutcome::Skipped => "up to date (skipped)",
+            StageOutcome::NotSelected => "not selected",
+        };
+        let took = manifest
+            .stages
+            .get(stage.as_str())
+            .map_or("not finished".into(), |r| format!("{:.1} s", r.seconds));
+        let _ = writeln!(md, "| {} | {status} | {took} |", stage.as_str());
+    }
+
+    let finished = |s: StageName| manifest.stages.contains_key(s.as_str());
+    if finished(StageName::Maps) {
+        let _ = writeln!(
+            md,
+            "\n## Maps\n\n| map | lanes | lane km | junctions | stop / give-way lines | roundabouts |\n| --- | ---: | ---: | ---: | ---: | ---: |"
+        );
+        for rel in [CAMPUS_MAP, ROUNDABOUT_MAP] {
+            let s = json(&run_dir.join(rel).join("summary.json"));
+            let km = s
+                .as_ref()
+                .and_then(|v| v.pointer("/lane_length_m"))
+                .and_then(Value::as_f64)
+                .map_or("n/a".into(), |m| format!("{:.1}", m / 1000.0));
+            let roundabouts = s
+                .as_ref()
+                .and_then(|v| v.pointer("/roundabouts"))
+                .and_then(Value::as_array)
+                .map_or("n/a".into(), |a| a.len().to_string());
+            let _ = writeln!(
+                md,
+                "| `{rel}` | {} | {km} | {} | {} | {roundabouts} |",
+                number(&s, "/lanes", 0),
+                number(&s, "/junctions", 0),
+                number(&s, "/stop_lines/total", 0)
+            );
+        }
+        let _ = writeln!(
+            md,
+            "\n![campus]({CAMPUS_MAP}/preview.png) ![roundabout]({ROUNDABOUT_MAP}/preview.png)"
+        );
+    }
+    if finished(StageName::Dataset) {
+        let split = json(&run_dir.join(GENERATED).join("split.json"));
+        let _ = write!(
+            md,
+            "\n## Segmentation data\n\n{} images rendered on the campus (`{GENERATED}`), split {} train / {} val",
+            lines_of(&run_dir.join(GENERATED).join("manifest.jsonl")).unwrap_or(0),
+            number(&split, "/counts/train", 0),
+            number(&split, "/counts/val", 0),
+        );
+        if finished(StageName::Augment) {
+            let _ = writeln!(
+                md,
+                "; {} items after augmentation (`{AUGMENTED}`, thesis preset, originals included)",
+                lines_of(&run_dir.join(AUGMENTED).join("manifest.jsonl")).unwrap_or(0)
+            );
+        }
+    }
+    if finished(StageName::Dataset) {
+        let _ = writeln!(md, ".");
+    }
+    if finished(StageName::Segmenter) {
+        let m = json(&run_dir.join(SEGMENTER_EVAL).join("metrics.json"));
+        let _ = writeln!(
+            md,
+            "\n## Segmenter\n\nModel `{SEGMENTER_MODEL}/best`; on {} validation images: mIoU **{}**, pixel accuracy {}.\n\n\
+             | road | lane marking | vehicle | human | other |\n| ---: | ---: | ---: | ---: | ---: |\n| {} | {} | {} | {} | {} |\n\n\
+             ![confusion]({SEGMENTER_EVAL}/confusion.png)",
+            number(&m, "/images", 0),
+            number(&m, "/miou", 3),
+            number(&m, "/pixel_accuracy", 3),
+            number(&m, "/per_class_iou/road", 3),
+            number(&m, "/per_class_iou/lane_marking", 3),
+            number(&m, "/per_class_iou/vehicle", 3),
+            number(&m, "/per_class_iou/human", 3),
+            number(&m, "/per_class_iou/other", 3),
+        );
+    }
+    if finished(StageName::Agent) {
+        let summary = json(&run_dir.join(AGENT_MODEL).join("summary.json"));
+        let table =
+            std::fs::read_to_string(run_dir.join(AGENT_EVAL).join("eval.md")).unwrap_or_default();
+        // The evaluation's own page starts with its title; keep its table.
+        let table: String = table
+            .lines()
+            .filter(|l| !l.starts_with("# "))
+            .collect::<Vec<_>>()
+            .join("\n");
+        let _ = writeln!(
+            md,
+            "\n## Roundabout-insertion agent\n\nTrained for {} transitions in {} s (`{AGENT_MODEL}`); evaluation (`{AGENT_EVAL}`):\n{}",
+            number(&summary, "/steps", 0),
+            number(&summary, "/wall_seconds", 0),
+            table.trim_end()
+        );
+    }
+    if finished(StageName::Logs) {
+        let p = json(&run_dir.join(SIMULATED_LOG).join(PROJECTION_JSON));
+        let episodes = p
+            .as_ref()
+            .and_then(|v| v.pointer("/episodes"))
+            .and_then(Value::as_array)
+            .map_or(0, Vec::len);
+        let agreement = p
+            .as_ref()
+            .and_then(|v| v.pointer("/layer_agreement"))
+            .and_then(Value::as_object)
+            .map(|o| {
+                o.iter()
+                    .map(|(k, v)| format!("{k} {:.4}", v.as_f64().unwrap_or(f64::NAN)))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            })
+            .unwrap_or_else(|| "n/a".into());
+        let _ = writeln!(
+            md,
+            "\n## Logs\n\nSimulated drives written as MCAP logs: {episodes} (`{SIMULATED_LOG}`): {} frames, {} messages. \
+             Read back and projected: largest footprint error {} m; bird's-eye pixels equal to the simulator's: {agreement}.\n\n\
+             Real logs (INTERACTION tracks, ROS 2 bags) are not bundled: convert them with `pipeline logs convert` and \
+             inspect them with `pipeline logs info` (docs/logs.md). Their projection and the replay evaluation against \
+             human decisions are not implemented yet.",
+            number(&p, "/frames", 0),
+            number(&p, "/messages", 0),
+            number(&p, "/max_position_error_m", 6),
+        );
+    }
+    let path = run_dir.join(REPORT_FILE);
+    write_file_atomic(&path, md.as_bytes())?;
+    Ok(path)
+}
