@@ -1,6 +1,7 @@
 //! End-to-end tests of `pipeline dataset generate` on the bundled OSM data (no
 //! ../shared/data needed): byte-identical output across runs and thread counts, the
-//! dataset's files and label values, the required image sizes, and bad input.
+//! dataset's files and label values, the required image sizes, shards that merge into the
+//! unsharded run's folder, and bad input.
 
 #![allow(clippy::unwrap_used, clippy::print_stdout)]
 
@@ -244,4 +245,56 @@ fn bad_input_names_the_file_and_writes_nothing() {
         assert!(stderr(&out).starts_with("error:"), "{}", stderr(&out));
         assert!(!out_dir.exists());
     }
+}
+
+/// Generation in two shards, merged, gives the unsharded run's folder byte for byte
+/// (issue 8, acceptance 3); a missing or repeated shard is refused.
+#[test]
+fn two_shards_merge_into_the_unsharded_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let args = ["--count", "9", "--size", "96x64", "--topdown", "--previews"];
+    let whole = tmp.path().join("whole").join("ds");
+    assert_success(&generate(&bundled_map(), &whole, "2", &args), "unsharded");
+    let mut shard_dirs = Vec::new();
+    for shard in ["1/2", "0/2"] {
+        let dir = tmp.path().join(format!("shard{}", &shard[..1]));
+        let mut shard_args = args.to_vec();
+        shard_args.extend(["--shard", shard]);
+        assert_success(&generate(&bundled_map(), &dir, "1", &shard_args), shard);
+        shard_dirs.push(dir);
+    }
+    assert_eq!(
+        read_json(&shard_dirs[1].join("card.json"))["config"]["shard"],
+        serde_json::json!({"index": 0, "count": 2})
+    );
+    let merged = tmp.path().join("merged").join("ds");
+    let out = pipeline()
+        .args(["--rerun", "off", "dataset", "merge", "--shards"])
+        .args(&shard_dirs)
+        .arg("--out")
+        .arg(&merged)
+        .output()
+        .unwrap();
+    assert_success(&out, "merge --shards");
+    let (expected, got) = (files(&whole), files(&merged));
+    assert_eq!(
+        expected.keys().collect::<Vec<_>>(),
+        got.keys().collect::<Vec<_>>()
+    );
+    for (path, bytes) in &expected {
+        assert!(got[path] == *bytes, "{path} differs");
+    }
+
+    // One shard twice and the other missing: refused, nothing written.
+    let bad = tmp.path().join("bad");
+    let out = pipeline()
+        .args(["--rerun", "off", "dataset", "merge", "--shards"])
+        .args([&shard_dirs[0], &shard_dirs[0]])
+        .arg("--out")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("exactly once"), "{}", stderr(&out));
+    assert!(!bad.exists());
 }

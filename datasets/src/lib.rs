@@ -14,6 +14,7 @@ pub mod logs;
 pub mod manifest;
 pub mod merge;
 pub mod render;
+pub mod shard;
 pub mod split;
 pub mod stats;
 

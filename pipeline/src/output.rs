@@ -185,10 +185,17 @@ fn remove_stale_temporaries(parent: &Path, name: &str) {
 /// Whether a process runs; where that cannot be told, assume it does (never delete another
 /// run's work).
 fn process_is_alive(pid: u32) -> bool {
-    if Path::new("/proc/self").exists() {
-        Path::new(&format!("/proc/{pid}")).exists()
-    } else {
-        true
+    if !Path::new("/proc/self").exists() {
+        return true;
+    }
+    match fs::read_to_string(format!("/proc/{pid}/stat")) {
+        // A killed process nobody has reaped yet is a zombie (state Z, or X when dying):
+        // it will never finish its output.
+        Ok(stat) => !stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().next())
+            .is_some_and(|state| state == "Z" || state == "X"),
+        Err(_) => false,
     }
 }
 
@@ -292,6 +299,24 @@ mod tests {
         let dir = AtomicDir::create(&root.path().join("out"), MARKERS)?;
         assert!(!stale.exists());
         dir.commit()?;
+        Ok(())
+    }
+
+    /// A process killed but not yet reaped (a zombie) counts as gone; this one does not.
+    #[test]
+    fn zombies_are_not_alive() -> Result<()> {
+        assert!(process_is_alive(std::process::id()));
+        if !Path::new("/proc/self").exists() {
+            return Ok(());
+        }
+        let mut child = std::process::Command::new("true").spawn()?;
+        // Not waited for: once it exits it stays a zombie until `wait`.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        while process_is_alive(child.id()) && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        assert!(!process_is_alive(child.id()));
+        child.wait()?;
         Ok(())
     }
 

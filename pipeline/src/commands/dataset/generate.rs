@@ -79,6 +79,11 @@ pub struct GenerateArgs {
     /// One plain look for every image (no colour, weather, wear or camera jitter).
     #[arg(long)]
     pub no_randomise: bool,
+
+    /// Make only shard i of n of the --count items (for running across machines); merge
+    /// the n shard folders with `pipeline dataset merge --shards` (docs/scaling.md).
+    #[arg(long, value_name = "i/n", value_parser = datasets::shard::Shard::parse)]
+    pub shard: Option<datasets::shard::Shard>,
 }
 
 /// "480x270" to (480, 270).
@@ -273,18 +278,22 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
         })?;
     }
 
+    let indices = args
+        .shard
+        .map_or(0..args.count, |shard| shard.range(args.count));
+    let to_render = indices.end - indices.start;
     progress.step(&format!(
-        "rendering {} images of {}x{}",
-        args.count, config.camera.width, config.camera.height
+        "rendering {to_render} images of {}x{}",
+        config.camera.width, config.camera.height
     ));
     let start = Instant::now();
     let done = AtomicU64::new(0);
-    let results: Vec<(Item, Option<(RgbImage, GrayImage)>)> = (0..args.count)
+    let results: Vec<(Item, Option<(RgbImage, GrayImage)>)> = indices
         .into_par_iter()
         .map_init(Workspace::default, |work, index| {
             let r = make_item(&generator, work, dir.path(), index, args.previews);
             let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-            progress.items("rendered", n, args.count);
+            progress.items("rendered", n, to_render);
             r
         })
         .collect::<Result<_>>()?;
@@ -312,7 +321,14 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
             "stage": GENERATE_STAGE,
             "licence": "map data © OpenStreetMap contributors (ODbL 1.0) when made from OSM",
         }),
-        json!({ "count": args.count, "generate": config }),
+        match args.shard {
+            None => json!({ "count": args.count, "generate": config }),
+            Some(shard) => json!({
+                "count": args.count,
+                "generate": config,
+                datasets::shard::SHARD_KEY: shard,
+            }),
+        },
         ctx.cli.seed,
     );
     write_dataset_files(dir.path(), &card, &items)

@@ -12,7 +12,7 @@ use crate::output::AtomicDir;
 #[derive(Debug, clap::Args)]
 pub struct MergeArgs {
     /// The dataset folders to merge.
-    #[arg(required = true, num_args = 2..)]
+    #[arg(required = true, num_args = 1..)]
     pub datasets: Vec<PathBuf>,
 
     /// Output dataset folder (written atomically).
@@ -30,6 +30,11 @@ pub struct MergeArgs {
     /// Dataset name in the card [default: the output folder's name].
     #[arg(long)]
     pub name: Option<String>,
+
+    /// The inputs are the shards of one `dataset generate --shard i/n` run: put them back
+    /// together in item order (the result is the unsharded run's folder, byte for byte).
+    #[arg(long, conflicts_with_all = ["weights", "total"])]
+    pub shards: bool,
 }
 
 pub fn run(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
@@ -61,6 +66,22 @@ pub fn run(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
         .name
         .clone()
         .unwrap_or_else(|| super::folder_name(&dest));
+    if args.shards {
+        let (items, _) = datasets::shard::merge_shards(&name, &refs, dir.path())
+            .map_err(|e| CliError::new(e.to_string(), "give every shard folder of one run"))?;
+        let out = dir.commit()?;
+        ctx.ui
+            .result(&format!("{} items from {} shards", items.len(), refs.len()));
+        ctx.ui.info(&format!("wrote {}", out.display()));
+        return Ok(());
+    }
+    if args.datasets.len() < 2 {
+        return Err(CliError::new(
+            "merge needs two datasets or more",
+            "give another dataset folder, or --shards for the shards of one run",
+        )
+        .into());
+    }
     let (items, card) =
         datasets::merge::merge(&name, &refs, &weights, args.total, ctx.cli.seed, dir.path())
             .map_err(|e| {

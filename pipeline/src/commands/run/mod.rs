@@ -151,7 +151,9 @@ pub fn run(ctx: &Context<'_>, args: &RunArgs) -> Result<()> {
             manifest.save(&run_dir)?;
         }
         for rel in stage.outputs() {
+            // `agent train` keeps checkpoints beside its folder while it trains.
             remove_output(&run_dir.join(rel))?;
+            remove_output(&run_dir.join(format!("{rel}.partial")))?;
         }
         let stage_start = Instant::now();
         env.run(stage)?;

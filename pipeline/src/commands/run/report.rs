@@ -103,23 +103,20 @@ pub fn write(
     }
     if finished(StageName::Dataset) {
         let split = json(&run_dir.join(GENERATED).join("split.json"));
-        let _ = write!(
-            md,
-            "\n## Segmentation data\n\n{} images rendered on the campus (`{GENERATED}`), split {} train / {} val",
+        let mut sentence = format!(
+            "{} images rendered on the campus (`{GENERATED}`), split {} train / {} val",
             lines_of(&run_dir.join(GENERATED).join("manifest.jsonl")).unwrap_or(0),
             number(&split, "/counts/train", 0),
             number(&split, "/counts/val", 0),
         );
         if finished(StageName::Augment) {
-            let _ = writeln!(
-                md,
+            let _ = write!(
+                sentence,
                 "; {} items after augmentation (`{AUGMENTED}`, thesis preset, originals included)",
                 lines_of(&run_dir.join(AUGMENTED).join("manifest.jsonl")).unwrap_or(0)
             );
         }
-    }
-    if finished(StageName::Dataset) {
-        let _ = writeln!(md, ".");
+        let _ = writeln!(md, "\n## Segmentation data\n\n{sentence}.");
     }
     if finished(StageName::Segmenter) {
         let m = json(&run_dir.join(SEGMENTER_EVAL).join("metrics.json"));
