@@ -1,8 +1,10 @@
-//! `pipeline logs info | convert`: summaries of MCAP files and ROS 2 bags, and INTERACTION
-//! track files written as MCAP logs.
+//! `pipeline logs info | convert | project`: summaries of MCAP files and ROS 2 bags,
+//! INTERACTION track files written as MCAP logs, and logs projected into the bird's-eye
+//! representation.
 
 mod convert;
 mod info;
+mod project;
 
 use std::path::PathBuf;
 
@@ -21,6 +23,9 @@ pub enum LogsCommand {
     /// Convert an INTERACTION track file (with its Lanelet2 map) into an MCAP log: every
     /// vehicle a detection, one of them the ego's odometry.
     Convert(ConvertArgs),
+    /// Draw a log's object frames in the bird's-eye representation around one vehicle
+    /// (the same layers the simulator draws), as a frame dataset.
+    Project(project::ProjectArgs),
 }
 
 #[derive(Debug, Args)]
@@ -67,6 +72,7 @@ pub fn run(ctx: &Context<'_>, command: &LogsCommand) -> Result<()> {
     match command {
         LogsCommand::Info(args) => info::run(ctx, args),
         LogsCommand::Convert(args) => convert::run(ctx, args),
+        LogsCommand::Project(args) => project::run(ctx, args),
     }
 }
 

@@ -1,0 +1,149 @@
+//! Projection of a log into the bird's-eye representation: every frame of object
+//! detections becomes a [`Scene`] around a chosen ego and is drawn by the simulator's
+//! renderer, so a recorded drive and a simulated one give the same kind of frames.
+//!
+//! The ego's path (the route layer in simulation) is the ego's own recorded trajectory:
+//! where the driver actually went. Speeds come from the positions (central differences).
+
+use std::collections::BTreeMap;
+
+use maps::geometry::Point;
+use rayon::prelude::*;
+use serde::Serialize;
+use sim::render::BevRenderer;
+use sim::{Actor, Scene};
+
+use super::convert::OBJECTS_TOPIC;
+use super::decode::{Decoded, DecodedLog};
+use super::scenes::actors_from_detections;
+
+/// The road users of one logged instant.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LogFrame {
+    pub time_ns: u64,
+    pub actors: Vec<Actor>,
+}
+
+/// Every detection frame of `topic` (default: the converter's `/objects`), in time order.
+pub fn log_frames(log: &DecodedLog, topic: Option<&str>) -> Vec<LogFrame> {
+    let mut frames: Vec<LogFrame> = log
+        .topic_messages(topic.unwrap_or(OBJECTS_TOPIC))
+        .filter_map(|m| match &m.message {
+            Decoded::Detection3DArray(a) => Some(LogFrame {
+                time_ns: m.log_time,
+                actors: actors_from_detections(a),
+            }),
+            _ => None,
+        })
+        .collect();
+    frames.sort_by_key(|f| f.time_ns);
+    frames
+}
+
+/// How many frames each track id appears in.
+pub fn track_lengths(frames: &[LogFrame]) -> BTreeMap<u32, usize> {
+    let mut lengths = BTreeMap::new();
+    for f in frames {
+        for a in &f.actors {
+            *lengths.entry(a.id).or_insert(0) += 1;
+        }
+    }
+    lengths
+}
+
+/// One projected frame's figures (the layers are stored apart).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ProjectedFrame {
+    /// Index into the log's frames.
+    pub log_frame: usize,
+    pub time_ns: u64,
+    pub ego: u32,
+    pub x: f64,
+    pub y: f64,
+    pub heading_rad: f64,
+    pub speed_mps: f64,
+    /// Road users in the frame, the ego included.
+    pub actors: usize,
+}
+
+/// The frames in which `ego` appears, drawn around it: the figures per frame and the
+/// layers of all of them (frame after frame, each `renderer.config().frame_len()` bytes).
+/// Frames are drawn in parallel; the result does not depend on the thread count.
+pub fn project(
+    map: &maps::Map,
+    renderer: &BevRenderer,
+    frames: &[LogFrame],
+    ego: u32,
+) -> (Vec<ProjectedFrame>, Vec<u8>) {
+    // The ego's track: (log frame, time, actor index).
+    let track: Vec<(usize, u64, usize)> = frames
+        .iter()
+        .enumerate()
+        .filter_map(|(k, f)| {
+            f.actors
+                .iter()
+                .position(|a| a.id == ego)
+                .map(|i| (k, f.time_ns, i))
+        })
+        .collect();
+    let path: Vec<Point> = track
+        .iter()
+        .map(|&(k, _, i)| frames[k].actors[i].position)
+        .fold(Vec::new(), |mut path, p| {
+            // A parked car's repeated positions would make a degenerate path.
+            if path.last().is_none_or(|q: &Point| q.distance(p) > 0.05) {
+                path.push(p);
+            }
+            path
+        });
+    let speed = |j: usize| -> f64 {
+        let (a, b) = (j.saturating_sub(1), (j + 1).min(track.len() - 1));
+        if a == b {
+            return 0.0;
+        }
+        let (pa, pb) = (
+            frames[track[a].0].actors[track[a].2].position,
+            frames[track[b].0].actors[track[b].2].position,
+        );
+        let dt = (track[b].1.saturating_sub(track[a].1)) as f64 * 1e-9;
+        if dt > 0.0 { pa.distance(pb) / dt } else { 0.0 }
+    };
+    let frame_len = renderer.config().frame_len();
+    let results: Vec<(ProjectedFrame, Vec<u8>)> = (0..track.len())
+        .into_par_iter()
+        .map_init(Vec::new, |out, j| {
+            let (k, time_ns, i) = track[j];
+            let mut actors = frames[k].actors.clone();
+            let speed_mps = speed(j);
+            actors[i].speed_mps = speed_mps;
+            let e = &actors[i];
+            let figures = ProjectedFrame {
+                log_frame: k,
+                time_ns,
+                ego,
+                x: e.position.x,
+                y: e.position.y,
+                heading_rad: e.heading_rad,
+                speed_mps,
+                actors: actors.len(),
+            };
+            let scene = Scene {
+                map,
+                time_s: time_ns as f64 * 1e-9,
+                actors,
+                ego: i,
+                ego_path: &path,
+            };
+            renderer.render(&scene, out);
+            debug_assert_eq!(out.len(), frame_len);
+            (figures, out.clone())
+        })
+        .collect();
+    let mut figures = Vec::with_capacity(results.len());
+    let mut layers = Vec::with_capacity(results.len() * frame_len);
+    for (f, l) in results {
+        figures.push(f);
+        layers.extend_from_slice(&l);
+    }
+    (figures, layers)
+}

@@ -1,0 +1,237 @@
+//! `pipeline logs project`: a log's object frames drawn in the bird's-eye representation
+//! around one vehicle, as a frame dataset.
+//!
+//! The output folder holds `frames.json` (what the frames are: layers, size, extent, the
+//! log, the map, the ego, counts), `frames.jsonl` (one line per frame: time, the ego's
+//! pose and speed, road users), `layers.bin` (the frames' `u8` layers, frame after frame,
+//! layer-major, `width × height` bytes per layer), a few `previews/*.png` (layers in
+//! colour) and the rerun recording (the map, every vehicle as a box, the layers).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context as _, Result};
+use clap::Args;
+use datasets::logs::decode::read_decoded;
+use datasets::logs::project::{LogFrame, log_frames, project, track_lengths};
+use datasets::logs::source::{Log, ReadOptions};
+use image::RgbImage;
+use serde_json::json;
+use sim::render::{BevConfig, BevRenderer, Layer};
+
+use super::log_error;
+use crate::commands::Context;
+use crate::commands::dataset::generate::load_input_map;
+use crate::error::CliError;
+use crate::output::AtomicDir;
+use crate::recording::{log_actors, log_layers, log_map};
+
+pub const FRAMES_JSON: &str = "frames.json";
+pub const FRAMES_JSONL: &str = "frames.jsonl";
+pub const LAYERS_BIN: &str = "layers.bin";
+const MARKERS: crate::output::Markers = &[FRAMES_JSON];
+
+#[derive(Debug, Args)]
+pub struct ProjectArgs {
+    /// The log: an .mcap file (e.g. from `logs convert`), a bag folder or a .db3 file.
+    pub log: PathBuf,
+
+    /// The map the log was recorded on: a map folder or file, or an OSM / Lanelet2 file.
+    #[arg(long, value_name = "MAP|OSM")]
+    pub map: PathBuf,
+
+    /// Output folder (written atomically).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+
+    /// Track id of the vehicle to centre the frames on [default: the longest track].
+    #[arg(long, value_name = "TRACK_ID")]
+    pub ego: Option<u32>,
+
+    /// Topic of the vision_msgs/Detection3DArray frames [default: /objects].
+    #[arg(long, value_name = "TOPIC")]
+    pub objects_topic: Option<String>,
+
+    /// PNG previews written (evenly spread over the frames).
+    #[arg(long, value_name = "N", default_value_t = 4)]
+    pub previews: usize,
+
+    /// Frames logged to the rerun recording (from the first).
+    #[arg(long, value_name = "N", default_value_t = 300)]
+    pub record_frames: usize,
+}
+
+/// A frame's layers in colour: navigable grey, path green, stop lines yellow, vehicles red.
+fn preview(frame: &[u8], config: &BevConfig) -> RgbImage {
+    let (w, h) = (config.width, config.height);
+    let layer = |kind: Layer| {
+        config
+            .layers
+            .iter()
+            .position(|l| *l == kind)
+            .map(|i| &frame[i * w * h..(i + 1) * w * h])
+    };
+    let (nav, path, obstacles, lines) = (
+        layer(Layer::Navigable),
+        layer(Layer::Path),
+        layer(Layer::Obstacles),
+        layer(Layer::StopLines),
+    );
+    let on = |l: Option<&[u8]>, i: usize| l.is_some_and(|l| l[i] != 0);
+    RgbImage::from_fn(w as u32, h as u32, |x, y| {
+        let i = y as usize * w + x as usize;
+        image::Rgb(if on(obstacles, i) {
+            [230, 60, 50]
+        } else if on(lines, i) {
+            [250, 220, 40]
+        } else if on(path, i) {
+            [60, 200, 90]
+        } else if on(nav, i) {
+            [120, 120, 120]
+        } else {
+            [20, 20, 20]
+        })
+    })
+}
+
+pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
+    let out = ctx.output_path(&args.out);
+    AtomicDir::check_destination(&out, MARKERS)?;
+    let mut progress = ctx.ui.progress("logs project");
+    progress.step(&format!("reading {}", args.map.display()));
+    let map = Arc::new(load_input_map(&args.map)?);
+    progress.step(&format!("reading {}", args.log.display()));
+    let log = Log::open(&args.log).map_err(log_error)?;
+    let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;
+    let frames: Vec<LogFrame> = log_frames(&decoded, args.objects_topic.as_deref());
+    if frames.is_empty() {
+        return Err(CliError::file(
+            &args.log,
+            format!(
+                "has no vision_msgs/Detection3DArray frames on {}",
+                args.objects_topic.as_deref().unwrap_or("/objects")
+            ),
+            "give --objects-topic (see `pipeline logs info`), or convert tracks with `pipeline logs convert`",
+        )
+        .into());
+    }
+    let lengths = track_lengths(&frames);
+    let ego = match args.ego {
+        Some(id) if lengths.contains_key(&id) => id,
+        Some(id) => {
+            return Err(CliError::file(
+                &args.log,
+                format!("has no track {id} ({} tracks)", lengths.len()),
+                "give --ego one of the log's track ids (the detections' id field)",
+            )
+            .into());
+        }
+        // The longest track; ties to the smallest id.
+        None => lengths
+            .iter()
+            .max_by_key(|(id, n)| (**n, std::cmp::Reverse(**id)))
+            .map(|(id, _)| *id)
+            .unwrap_or_default(),
+    };
+    let config = BevConfig::default();
+    let renderer = BevRenderer::new(&map, map.bounds(), config.clone()).map_err(|e| {
+        CliError::file(
+            &args.map,
+            e.to_string(),
+            "give the map the log was recorded on",
+        )
+    })?;
+
+    progress.step(&format!(
+        "projecting {} frames around track {ego}",
+        lengths[&ego]
+    ));
+    let start = Instant::now();
+    let (figures, layers) = project(&map, &renderer, &frames, ego);
+    let seconds = start.elapsed().as_secs_f64();
+
+    let dir = AtomicDir::create(&out, MARKERS)?;
+    let write = |name: &str, bytes: &[u8]| -> Result<()> {
+        std::fs::write(dir.path().join(name), bytes)
+            .with_context(|| format!("{}: cannot write {name}", out.display()))
+    };
+    let layer_names: Vec<&str> = config.layers.iter().map(|l| l.name()).collect();
+    let card = json!({
+        "tool": "pipeline logs project",
+        "pipeline_version": env!("CARGO_PKG_VERSION"),
+        "log": args.log.file_name().map(|n| n.to_string_lossy().into_owned()),
+        "map": args.map.file_name().map(|n| n.to_string_lossy().into_owned()),
+        "ego": ego,
+        "frames": figures.len(),
+        "log_frames": frames.len(),
+        "tracks": lengths.len(),
+        "layers": layer_names,
+        "width": config.width,
+        "height": config.height,
+        "bev": config,
+        "layers_file": LAYERS_BIN,
+    });
+    write(
+        FRAMES_JSON,
+        format!("{}\n", serde_json::to_string_pretty(&card)?).as_bytes(),
+    )?;
+    let mut lines = String::new();
+    for f in &figures {
+        lines.push_str(&serde_json::to_string(f)?);
+        lines.push('\n');
+    }
+    write(FRAMES_JSONL, lines.as_bytes())?;
+    write(LAYERS_BIN, &layers)?;
+    let frame_len = config.frame_len();
+    if args.previews > 0 && !figures.is_empty() {
+        std::fs::create_dir_all(dir.path().join("previews"))?;
+        // Evenly spread, the first and last frames included.
+        let n = args.previews.min(figures.len());
+        for p in 0..n {
+            let j = if n == 1 {
+                0
+            } else {
+                p * (figures.len() - 1) / (n - 1)
+            };
+            let png = datasets::image_io::encode_rgb_png(&preview(
+                &layers[j * frame_len..(j + 1) * frame_len],
+                &config,
+            ));
+            write(&format!("previews/frame_{j:06}.png"), &png)?;
+        }
+    }
+
+    let recording = ctx.open_recording(Some(dir.path()))?;
+    if let Some(rec) = recording.stream() {
+        log_map(rec, &map)?;
+        for (j, f) in figures.iter().enumerate().take(args.record_frames) {
+            rec.set_time_sequence("frame", j as i64);
+            rec.set_duration_secs("sim_time", f.time_ns as f64 * 1e-9);
+            let actors = &frames[f.log_frame].actors;
+            let ego_index = actors.iter().position(|a| a.id == ego).unwrap_or(0);
+            log_actors(rec, "world/logs/vehicles", actors, ego_index)?;
+            log_layers(
+                rec,
+                "logs/bev",
+                &layers[j * frame_len..(j + 1) * frame_len],
+                &layer_names,
+                config.width,
+                config.height,
+            )?;
+        }
+    }
+    recording.finish()?;
+    let dest = dir.commit()?;
+    drop(progress);
+    ctx.ui.result(&format!(
+        "{} frames around track {ego} ({} log frames, {} tracks) in {seconds:.2} s ({:.0} frames/s on {} threads); wrote {}",
+        figures.len(),
+        frames.len(),
+        lengths.len(),
+        figures.len() as f64 / seconds.max(1e-9),
+        rayon::current_num_threads(),
+        dest.display()
+    ));
+    Ok(())
+}

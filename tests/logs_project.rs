@@ -1,0 +1,116 @@
+//! `pipeline logs project` on a real INTERACTION recording (issue 7, acceptance 3): the
+//! roundabout FT's tracks converted to MCAP, projected around one vehicle; every frame has
+//! the ego's footprint at its centre, on the drivable area of the real map, and the frame
+//! dataset's files agree with each other. Skips when ../shared/data is absent.
+
+#![allow(clippy::unwrap_used, clippy::print_stdout)]
+
+mod common;
+
+use common::{assert_success, pipeline, read_json, shared_data, stderr};
+
+#[test]
+fn interaction_tracks_project_onto_the_real_roundabout() {
+    let Some(data) = shared_data() else {
+        println!("skipped: ../shared/data is absent");
+        return;
+    };
+    let base = data.join("trajectories/interaction");
+    let map = base.join("maps/DR_USA_Roundabout_FT.osm");
+    let tracks = base.join("recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_000.csv.gz");
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("ft_000.mcap");
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "convert"])
+        .arg(&tracks)
+        .arg("--map")
+        .arg(&map)
+        .arg("--out")
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert_success(&out, "logs convert");
+
+    let frames_dir = tmp.path().join("frames");
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "project"])
+        .arg(&log)
+        .arg("--map")
+        .arg(&map)
+        .args(["--ego", "60", "--previews", "2", "--out"])
+        .arg(&frames_dir)
+        .output()
+        .unwrap();
+    assert_success(&out, "logs project");
+
+    let card = read_json(&frames_dir.join("frames.json"));
+    let (w, h) = (
+        card["width"].as_u64().unwrap() as usize,
+        card["height"].as_u64().unwrap() as usize,
+    );
+    let layers: Vec<String> = card["layers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_owned())
+        .collect();
+    let frames = card["frames"].as_u64().unwrap() as usize;
+    // Track 60 of FT 000 is in 547 of the recording's 3,008 frames (10 Hz).
+    assert_eq!(frames, 547);
+    assert_eq!(card["log_frames"].as_u64(), Some(3008));
+    let lines = std::fs::read_to_string(frames_dir.join("frames.jsonl")).unwrap();
+    assert_eq!(lines.lines().count(), frames);
+    let bytes = std::fs::read(frames_dir.join("layers.bin")).unwrap();
+    let frame_len = layers.len() * w * h;
+    assert_eq!(bytes.len(), frames * frame_len);
+
+    let layer = |name: &str| layers.iter().position(|l| l == name).unwrap();
+    let (navigable, obstacles) = (layer("navigable"), layer("obstacles"));
+    let centre = (h / 2) * w + w / 2;
+    let mut on_road = 0;
+    for frame in bytes.chunks_exact(frame_len) {
+        // The ego sits at the centre of its own frame.
+        assert_eq!(frame[obstacles * w * h + centre], 255);
+        on_road += usize::from(frame[navigable * w * h + centre] == 255);
+    }
+    // Where the drone saw the car, the Lanelet2 map has road: the tracks and the map line up.
+    assert!(
+        on_road as f64 >= 0.95 * frames as f64,
+        "{on_road} of {frames} frames have the ego on the navigable area"
+    );
+    // Speeds are those of a car in a roundabout.
+    let max_speed = lines
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["speed_mps"]
+                .as_f64()
+                .unwrap()
+        })
+        .fold(0.0, f64::max);
+    assert!((3.0..25.0).contains(&max_speed), "{max_speed}");
+    assert_eq!(
+        std::fs::read_dir(frames_dir.join("previews"))
+            .unwrap()
+            .count(),
+        2
+    );
+
+    // An ego the log does not have: one clear error, nothing written.
+    let bad = tmp.path().join("bad");
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "project"])
+        .arg(&log)
+        .arg("--map")
+        .arg(&map)
+        .args(["--ego", "99999", "--out"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("has no track 99999"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!bad.exists());
+}
