@@ -128,6 +128,11 @@ pub enum Group {
         #[command(subcommand)]
         command: crate::commands::logs::LogsCommand,
     },
+    /// Judge policies against real drivers' decisions in recorded logs.
+    Replay {
+        #[command(subcommand)]
+        command: crate::commands::replay::ReplayCommand,
+    },
     /// The main job: every stage in order on the bundled campus and roundabout, into one run
     /// folder with a report and one rerun recording; unchanged stages are skipped. Reads
     /// `pipeline.toml` from the current folder when there is no --config.

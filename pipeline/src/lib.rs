@@ -44,6 +44,7 @@ pub fn dispatch(ctx: &commands::Context<'_>) -> anyhow::Result<()> {
         cli::Group::Dataset { command } => commands::dataset::run(ctx, command),
         cli::Group::Logs { command } => commands::logs::run(ctx, command),
         cli::Group::Segmenter { command } => commands::segmenter::run(ctx, command),
+        cli::Group::Replay { command } => commands::replay::run(ctx, command),
         cli::Group::Run(args) => commands::run::run(ctx, args),
     }
 }

@@ -14,6 +14,7 @@
 pub mod bag;
 pub mod cdr;
 pub mod convert;
+pub mod decisions;
 pub mod decode;
 pub mod error;
 pub mod foxglove;

@@ -5,6 +5,7 @@ pub mod agent;
 pub mod dataset;
 pub mod logs;
 pub mod map;
+pub mod replay;
 pub mod run;
 pub mod segmenter;
 

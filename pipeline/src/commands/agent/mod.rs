@@ -12,7 +12,7 @@
 
 mod episodes;
 mod eval;
-mod train;
+pub(crate) mod train;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

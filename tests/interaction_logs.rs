@@ -1,25 +1,32 @@
-//! `pipeline logs project` on a real INTERACTION recording (issue 7, acceptance 3): the
-//! roundabout FT's tracks converted to MCAP, projected around one vehicle; every frame has
-//! the ego's footprint at its centre, on the drivable area of the real map, and the frame
-//! dataset's files agree with each other. Skips when ../shared/data is absent.
+//! Real INTERACTION recordings of the roundabout FT, converted to MCAP (`logs convert`):
+//! - `logs project` around one vehicle (issue 7, acceptance 3): every frame has the ego's
+//!   footprint at its centre, on the drivable area of the real map, and the frame
+//!   dataset's files agree with each other;
+//! - `replay eval` (issue 7, acceptance 4's harness): approaches found and labelled, the
+//!   scores consistent with the labels.
+//!
+//! Skips when ../shared/data is absent.
 
 #![allow(clippy::unwrap_used, clippy::print_stdout)]
 
 mod common;
 
+use std::path::{Path, PathBuf};
+
 use common::{assert_success, pipeline, read_json, shared_data, stderr};
 
-#[test]
-fn interaction_tracks_project_onto_the_real_roundabout() {
+/// The FT map, and recording `n` converted into `dir` (None without ../shared/data).
+fn ft_recording(dir: &Path, n: u32) -> Option<(PathBuf, PathBuf)> {
     let Some(data) = shared_data() else {
         println!("skipped: ../shared/data is absent");
-        return;
+        return None;
     };
     let base = data.join("trajectories/interaction");
     let map = base.join("maps/DR_USA_Roundabout_FT.osm");
-    let tracks = base.join("recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_000.csv.gz");
-    let tmp = tempfile::tempdir().unwrap();
-    let log = tmp.path().join("ft_000.mcap");
+    let tracks = base.join(format!(
+        "recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_{n:03}.csv.gz"
+    ));
+    let log = dir.join(format!("ft_{n:03}.mcap"));
     let out = pipeline()
         .args(["--rerun", "off", "logs", "convert"])
         .arg(&tracks)
@@ -30,7 +37,15 @@ fn interaction_tracks_project_onto_the_real_roundabout() {
         .output()
         .unwrap();
     assert_success(&out, "logs convert");
+    Some((map, log))
+}
 
+#[test]
+fn interaction_tracks_project_onto_the_real_roundabout() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some((map, log)) = ft_recording(tmp.path(), 0) else {
+        return;
+    };
     let frames_dir = tmp.path().join("frames");
     let out = pipeline()
         .args(["--rerun", "off", "logs", "project"])
@@ -113,4 +128,69 @@ fn interaction_tracks_project_onto_the_real_roundabout() {
         stderr(&out)
     );
     assert!(!bad.exists());
+}
+
+#[test]
+fn replay_labels_real_approaches_and_scores_the_baselines() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some((map, log)) = ft_recording(tmp.path(), 0) else {
+        return;
+    };
+    let out_dir = tmp.path().join("replay");
+    let out = pipeline()
+        .args(["--rerun", "off", "replay", "eval", "--log"])
+        .arg(&log)
+        .arg("--map")
+        .arg(&map)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    assert_success(&out, "replay eval");
+    let r = read_json(&out_dir.join("replay.json"));
+    let approaches = r["approaches"].as_u64().unwrap();
+    let stopped = r["approaches_with_a_stop"].as_u64().unwrap();
+    assert!(
+        approaches >= 50 && stopped >= 10,
+        "{approaches} approaches, {stopped} with a stop"
+    );
+    let frames = |k: &str| r["frames"][k].as_u64().unwrap_or(0);
+    let (go, wait) = (frames("go"), frames("wait"));
+    assert!(go > 0 && wait > 0);
+    for p in r["policies"].as_array().unwrap() {
+        // Every scored frame is in the confusion matrix once.
+        let c = &p["confusion"];
+        let n = |h: &str, q: &str| c[h][q].as_u64().unwrap_or(0);
+        assert_eq!(n("go", "go") + n("go", "wait"), go, "{p}");
+        assert_eq!(n("wait", "go") + n("wait", "wait"), wait, "{p}");
+        let agreement = p["agreement"].as_f64().unwrap();
+        let expected = (n("go", "go") + n("wait", "wait")) as f64 / (go + wait) as f64;
+        assert!((agreement - expected).abs() < 1e-12, "{p}");
+    }
+    // Always go agrees exactly on the go frames.
+    let always = r["policies"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["policy"] == "always go")
+        .unwrap();
+    assert!((always["agreement"].as_f64().unwrap() - go as f64 / (go + wait) as f64).abs() < 1e-12);
+
+    // A map without a roundabout: one clear error.
+    let campus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/osm/northwestern_nu.osm.pbf");
+    let out = pipeline()
+        .args(["--rerun", "off", "replay", "eval", "--log"])
+        .arg(&log)
+        .arg("--map")
+        .arg(&campus)
+        .arg("--out")
+        .arg(tmp.path().join("bad"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("has no roundabout"),
+        "{}",
+        stderr(&out)
+    );
 }

@@ -1,0 +1,259 @@
+//! What real drivers decided at roundabout entries: each vehicle's approach to a yield
+//! line, every frame labelled go or wait from what the driver then did.
+//!
+//! An approach is the part of a track before it crosses a roundabout's yield line towards
+//! the ring, up to `approach_m` of driving before the line. Its frames are labelled:
+//! - when the driver stopped (speed under `stop_mps`) before the line: wait up to the last
+//!   stopped frame, ambiguous for `decision_s` after it (the moment the driver decided to
+//!   go is not seen exactly), go afterwards;
+//! - when the driver slowed to a crawl (under `crawl_mps`) without stopping: ambiguous up
+//!   to the slowest frame (yielding or just braking for the curve?), go afterwards;
+//! - otherwise go throughout.
+//!
+//! A wait frame in which another vehicle stands right ahead of the driver (within
+//! `queue_gap_m` of its front, in its lane) is `Queued` instead: the driver waited behind
+//! a car, not for a gap in the ring, and no entry decision was made. Queued and ambiguous
+//! frames are counted, not scored.
+
+use maps::Map;
+use maps::geometry::Point;
+use serde::{Deserialize, Serialize};
+
+use super::project::LogFrame;
+
+/// A driver's decision at one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Decision {
+    Go,
+    Wait,
+    Ambiguous,
+    /// Stopped behind another vehicle.
+    Queued,
+}
+
+/// The labelling thresholds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LabelConfig {
+    /// Driving before the yield line that counts as the approach, m.
+    pub approach_m: f64,
+    /// Below this the vehicle is stopped, m/s.
+    pub stop_mps: f64,
+    /// Below this (without stopping) the driver may have been yielding, m/s.
+    pub crawl_mps: f64,
+    /// Frames this long after the last stop are ambiguous, s.
+    pub decision_s: f64,
+    /// Approaches shorter than this are dropped (a track that starts at the line), s.
+    pub min_approach_s: f64,
+    /// A vehicle whose centre is this far ahead of the driver's centre or less (and
+    /// within half a lane sideways) makes a wait frame queued, m.
+    pub queue_gap_m: f64,
+}
+
+impl Default for LabelConfig {
+    fn default() -> Self {
+        LabelConfig {
+            approach_m: 30.0,
+            stop_mps: 0.5,
+            crawl_mps: 2.0,
+            decision_s: 1.0,
+            min_approach_s: 1.0,
+            queue_gap_m: 8.0,
+        }
+    }
+}
+
+/// One vehicle's approach to a yield line.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Approach {
+    pub track: u32,
+    pub roundabout: u64,
+    /// Log frame indices of the approach, in time order.
+    pub frames: Vec<usize>,
+    pub labels: Vec<Decision>,
+    /// Speeds at those frames, m/s.
+    pub speeds: Vec<f64>,
+    /// The log frame at which the track crossed the line.
+    pub crossed_at: usize,
+    pub stopped: bool,
+}
+
+/// Whether segments ab and cd cross.
+fn crosses(a: Point, b: Point, c: Point, d: Point) -> bool {
+    let side = |p: Point, q: Point, r: Point| q.sub(p).cross(r.sub(p));
+    let (d1, d2) = (side(c, d, a), side(c, d, b));
+    let (d3, d4) = (side(a, b, c), side(a, b, d));
+    d1 * d2 < 0.0 && d3 * d4 < 0.0
+}
+
+/// The approaches of every track of `frames` to the yield lines of `map`'s roundabouts.
+pub fn approaches(map: &Map, frames: &[LogFrame], config: &LabelConfig) -> Vec<Approach> {
+    // Per track: (log frame, time, position).
+    let mut tracks: std::collections::BTreeMap<u32, Vec<(usize, u64, Point)>> =
+        std::collections::BTreeMap::new();
+    for (k, f) in frames.iter().enumerate() {
+        for a in &f.actors {
+            tracks
+                .entry(a.id)
+                .or_default()
+                .push((k, f.time_ns, a.position));
+        }
+    }
+    let lines: Vec<(u64, Point, &[Point])> = map
+        .roundabouts
+        .values()
+        .flat_map(|r| {
+            r.yield_lines
+                .iter()
+                .filter_map(|id| map.stop_lines.get(id))
+                .map(move |s| (u64::from(r.id.0), r.centre, s.line.as_slice()))
+        })
+        .collect();
+    let mut out = Vec::new();
+    for (track, points) in &tracks {
+        let speeds = speeds(points);
+        // The first crossing of a yield line towards its ring.
+        let crossing = points.windows(2).enumerate().find_map(|(j, w)| {
+            let (a, b) = (w[0].2, w[1].2);
+            lines.iter().find_map(|(roundabout, centre, line)| {
+                let towards = b.distance(*centre) < a.distance(*centre);
+                let hit = line.windows(2).any(|l| crosses(a, b, l[0], l[1]));
+                (towards && hit).then_some((j + 1, *roundabout))
+            })
+        });
+        let Some((cross, roundabout)) = crossing else {
+            continue;
+        };
+        // Back from the crossing while within approach_m of driving.
+        let mut start = cross;
+        let mut driven = 0.0;
+        while start > 0 {
+            driven += points[start].2.distance(points[start - 1].2);
+            if driven > config.approach_m {
+                break;
+            }
+            start -= 1;
+        }
+        let span_s = (points[cross].1.saturating_sub(points[start].1)) as f64 * 1e-9;
+        if cross <= start || span_s < config.min_approach_s {
+            continue;
+        }
+        let range = start..cross;
+        let v: Vec<f64> = speeds[range.clone()].to_vec();
+        let t: Vec<f64> = points[range.clone()]
+            .iter()
+            .map(|p| p.1 as f64 * 1e-9)
+            .collect();
+        let last_stop = v.iter().rposition(|s| *s < config.stop_mps);
+        let labels: Vec<Decision> = match last_stop {
+            Some(stop) => (0..v.len())
+                .map(|i| {
+                    if i <= stop {
+                        Decision::Wait
+                    } else if t[i] - t[stop] <= config.decision_s {
+                        Decision::Ambiguous
+                    } else {
+                        Decision::Go
+                    }
+                })
+                .collect(),
+            None => {
+                let slowest = (0..v.len())
+                    .min_by(|a, b| v[*a].total_cmp(&v[*b]))
+                    .unwrap_or(0);
+                (0..v.len())
+                    .map(|i| {
+                        if v[slowest] < config.crawl_mps && i <= slowest {
+                            Decision::Ambiguous
+                        } else {
+                            Decision::Go
+                        }
+                    })
+                    .collect()
+            }
+        };
+        let mut labels = labels;
+        for (label, p) in labels.iter_mut().zip(&points[range.clone()]) {
+            if *label == Decision::Wait && has_leader(&frames[p.0], *track, config.queue_gap_m) {
+                *label = Decision::Queued;
+            }
+        }
+        out.push(Approach {
+            track: *track,
+            roundabout,
+            frames: points[range].iter().map(|p| p.0).collect(),
+            labels,
+            speeds: v,
+            crossed_at: points[cross].0,
+            stopped: last_stop.is_some(),
+        });
+    }
+    out
+}
+
+/// Whether another vehicle stands right ahead of `track` in `frame`.
+fn has_leader(frame: &LogFrame, track: u32, gap_m: f64) -> bool {
+    let Some(me) = frame.actors.iter().find(|a| a.id == track) else {
+        return false;
+    };
+    let (s, c) = me.heading_rad.sin_cos();
+    frame.actors.iter().filter(|a| a.id != track).any(|a| {
+        let d = a.position.sub(me.position);
+        let ahead = d.x * c + d.y * s;
+        let side = -d.x * s + d.y * c;
+        ahead > 0.0 && ahead <= gap_m && side.abs() <= 1.75
+    })
+}
+
+/// Speeds along a track by central differences, m/s.
+fn speeds(points: &[(usize, u64, Point)]) -> Vec<f64> {
+    (0..points.len())
+        .map(|j| {
+            let (a, b) = (j.saturating_sub(1), (j + 1).min(points.len() - 1));
+            let dt = (points[b].1.saturating_sub(points[a].1)) as f64 * 1e-9;
+            if a == b || dt <= 0.0 {
+                0.0
+            } else {
+                points[a].2.distance(points[b].2) / dt
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn segments_cross_only_when_they_do() {
+        let p = Point::new;
+        assert!(crosses(
+            p(0.0, -1.0),
+            p(0.0, 1.0),
+            p(-1.0, 0.0),
+            p(1.0, 0.0)
+        ));
+        assert!(!crosses(
+            p(0.0, 0.5),
+            p(0.0, 1.0),
+            p(-1.0, 0.0),
+            p(1.0, 0.0)
+        ));
+        assert!(!crosses(
+            p(2.0, -1.0),
+            p(2.0, 1.0),
+            p(-1.0, 0.0),
+            p(1.0, 0.0)
+        ));
+    }
+
+    #[test]
+    fn speeds_by_central_differences() {
+        let pts: Vec<(usize, u64, Point)> = (0..4)
+            .map(|i| (i, i as u64 * 100_000_000, Point::new(i as f64 * 0.5, 0.0)))
+            .collect();
+        let v = speeds(&pts);
+        assert!(v.iter().all(|s| (s - 5.0).abs() < 1e-9), "{v:?}");
+    }
+}

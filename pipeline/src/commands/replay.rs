@@ -1,0 +1,398 @@
+//! `pipeline replay eval`: policies judged against what real drivers did at roundabout
+//! entries (open loop).
+//!
+//! Each log (objects as vision_msgs/Detection3DArray, e.g. INTERACTION tracks through
+//! `logs convert`) is read; every vehicle's approach to a yield line of the map's
+//! roundabouts is labelled go / wait / ambiguous frame by frame from what its driver did
+//! (`datasets::logs::decisions`). At each labelled frame every policy decides from what
+//! the driver could see then: the rules from the distance to the nearest vehicle on the
+//! ring, the agent from the bird's-eye frames around the vehicle (its own recorded path,
+//! four frames stacked) and its scalars. Caution counts as wait, as in the Parma study.
+//! Agreement is over the go and wait frames; ambiguous frames are counted, not scored.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use datasets::logs::decisions::{Approach, Decision, LabelConfig, approaches};
+use datasets::logs::decode::read_decoded;
+use datasets::logs::project::{LogFrame, log_frames, project};
+use datasets::logs::source::{Log, ReadOptions};
+use models::dqn::{greedy_action, load_network, read_agent_description};
+use models::policy::QPolicy;
+use serde::Serialize;
+use sim::render::{BevConfig, BevRenderer};
+use sim::tasks::insertion::Action;
+use sim::{Observation, ObservationSpec};
+
+use super::Context;
+use super::agent::train::{models_error, read_task, write_json};
+use super::dataset::generate::load_input_map;
+use super::logs::log_error;
+use crate::error::CliError;
+use crate::output::{AtomicDir, Markers, write_file_atomic};
+
+pub const REPLAY_JSON: &str = "replay.json";
+pub const REPLAY_MD: &str = "replay.md";
+const MARKERS: Markers = &[REPLAY_JSON];
+/// Vehicles this close to the ring's centre line (in distance from the roundabout's
+/// centre) count as circulating, m.
+const RING_HALF_WIDTH_M: f64 = 4.0;
+
+#[derive(Debug, Subcommand)]
+pub enum ReplayCommand {
+    /// Agreement of policies (an agent, the gap rules, always go) with real drivers' go /
+    /// wait decisions at roundabout entries, frame by frame.
+    Eval(EvalArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Logs to replay (MCAP from `logs convert`, or any log with object detections).
+    #[arg(long = "log", value_name = "FILE", required = true)]
+    pub logs: Vec<PathBuf>,
+
+    /// The map the logs were recorded on (a Lanelet2 .osm, or a map folder).
+    #[arg(long, value_name = "MAP|OSM")]
+    pub map: PathBuf,
+
+    /// An agent folder from `agent train` [default: only the baselines].
+    #[arg(long, value_name = "DIR")]
+    pub agent: Option<PathBuf>,
+
+    /// The agent's aggressiveness input, one evaluation per level.
+    #[arg(long, value_name = "A,B,...", value_delimiter = ',', default_values_t = [0.0, 0.5, 1.0], allow_hyphen_values = true)]
+    pub aggressiveness: Vec<f64>,
+
+    /// The target speed the agent is told (the simulator gives the route's speed), m/s.
+    #[arg(long, value_name = "MPS", default_value_t = 8.0)]
+    pub target_speed: f64,
+
+    /// Output folder: replay.json and replay.md (written atomically).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+}
+
+pub fn run(ctx: &Context<'_>, command: &ReplayCommand) -> Result<()> {
+    match command {
+        ReplayCommand::Eval(args) => eval(ctx, args),
+    }
+}
+
+/// How one policy did.
+#[derive(Debug, Default, Clone, Serialize)]
+struct Score {
+    policy: String,
+    /// Of the go and wait frames, the share where the policy decided as the driver did.
+    agreement: f64,
+    /// `confusion[human][policy]`, human and policy each `go` or `wait`.
+    confusion: BTreeMap<String, BTreeMap<String, u64>>,
+    /// Per log: agreement.
+    per_log: BTreeMap<String, f64>,
+    /// Over approaches where the driver stopped: the policy's first go minus the driver's
+    /// (first go-labelled frame), s; positive = the policy went later.
+    mean_go_delay_s: Option<f64>,
+    #[serde(skip)]
+    matches_per_log: BTreeMap<String, (u64, u64)>,
+    #[serde(skip)]
+    delays: Vec<f64>,
+}
+
+impl Score {
+    fn new(policy: String) -> Score {
+        Score {
+            policy,
+            ..Default::default()
+        }
+    }
+
+    fn add(&mut self, log: &str, human: Decision, go: bool) {
+        let h = match human {
+            Decision::Go => "go",
+            Decision::Wait => "wait",
+            Decision::Ambiguous | Decision::Queued => return,
+        };
+        let p = if go { "go" } else { "wait" };
+        *self
+            .confusion
+            .entry(h.into())
+            .or_default()
+            .entry(p.into())
+            .or_default() += 1;
+        let e = self.matches_per_log.entry(log.into()).or_default();
+        e.0 += u64::from(h == p);
+        e.1 += 1;
+    }
+
+    fn finish(&mut self) {
+        let (m, n) = self
+            .matches_per_log
+            .values()
+            .fold((0, 0), |(a, b), (m, n)| (a + m, b + n));
+        self.agreement = m as f64 / n.max(1) as f64;
+        self.per_log = self
+            .matches_per_log
+            .iter()
+            .map(|(k, (m, n))| (k.clone(), *m as f64 / (*n).max(1) as f64))
+            .collect();
+        self.mean_go_delay_s = (!self.delays.is_empty())
+            .then(|| self.delays.iter().sum::<f64>() / self.delays.len() as f64);
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct Report {
+    logs: Vec<PathBuf>,
+    map: PathBuf,
+    agent: Option<PathBuf>,
+    labels: LabelConfig,
+    approaches: usize,
+    approaches_with_a_stop: usize,
+    frames: BTreeMap<String, u64>,
+    policies: Vec<Score>,
+}
+
+/// The agent and what it needs to see.
+struct Agent {
+    policy: QPolicy,
+    bev: BevConfig,
+    speed_scale_mps: f64,
+}
+
+fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
+    let out = ctx.output_path(&args.out);
+    AtomicDir::check_destination(&out, MARKERS)?;
+    let mut progress = ctx.ui.progress("replay eval");
+    progress.step(&format!("reading {}", args.map.display()));
+    let map = load_input_map(&args.map)?;
+    if map.roundabouts.is_empty() {
+        return Err(CliError::file(
+            &args.map,
+            "has no roundabout",
+            "give the roundabout's map the logs were recorded on",
+        )
+        .into());
+    }
+    let agent = match &args.agent {
+        None => None,
+        Some(dir) => {
+            progress.step(&format!("loading the agent {}", dir.display()));
+            let device = models::cpu_device();
+            let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
+            let task = read_task(dir)?;
+            let network =
+                load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;
+            let bev = task.config.observation.clone();
+            let spec: ObservationSpec = description.shape.spec();
+            Some(Agent {
+                policy: QPolicy::new(network, spec, description.shape.actions, device),
+                bev,
+                speed_scale_mps: task.config.speed_scale_mps,
+            })
+        }
+    };
+    let renderer = match &agent {
+        Some(a) => Some(
+            BevRenderer::new(&map, map.bounds(), a.bev.clone()).map_err(|e| {
+                CliError::file(
+                    &args.map,
+                    e.to_string(),
+                    "give the map the logs were recorded on",
+                )
+            })?,
+        ),
+        None => None,
+    };
+
+    let rules = [25.0, 20.0, 15.0, 10.0];
+    let mut scores: Vec<Score> = rules
+        .iter()
+        .map(|t| Score::new(format!("rule {t} m")))
+        .chain([Score::new("always go".into())])
+        .collect();
+    let levels = if agent.is_some() {
+        args.aggressiveness.clone()
+    } else {
+        Vec::new()
+    };
+    let first_agent = scores.len();
+    scores.extend(
+        levels
+            .iter()
+            .map(|a| Score::new(format!("agent, aggressiveness {a}"))),
+    );
+    let labels = LabelConfig::default();
+    let mut frame_counts: BTreeMap<String, u64> = BTreeMap::new();
+    let (mut n_approaches, mut n_stopped) = (0, 0);
+
+    for path in &args.logs {
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        progress.step(&format!("reading {name}"));
+        let log = Log::open(path).map_err(log_error)?;
+        let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;
+        let frames: Vec<LogFrame> = log_frames(&decoded, None);
+        let found = approaches(&map, &frames, &labels);
+        n_approaches += found.len();
+        n_stopped += found.iter().filter(|a| a.stopped).count();
+        progress.step(&format!("{name}: {} approaches", found.len()));
+        for approach in &found {
+            for l in &approach.labels {
+                *frame_counts
+                    .entry(format!("{l:?}").to_lowercase())
+                    .or_default() += 1;
+            }
+            // The rules and always-go.
+            let decisions: Vec<Vec<bool>> = approach
+                .frames
+                .iter()
+                .map(|&k| {
+                    let near = nearest_circulating(&map, &frames[k], approach.track);
+                    rules.iter().map(|t| near > *t).chain([true]).collect()
+                })
+                .collect();
+            for (p, score) in scores.iter_mut().enumerate().take(first_agent) {
+                let goes: Vec<bool> = decisions.iter().map(|d| d[p]).collect();
+                score_approach(score, &name, approach, &frames, &goes);
+            }
+            // The agent, once per aggressiveness level.
+            if let (Some(agent), Some(renderer)) = (&agent, &renderer) {
+                let (projected, layers) = project(&map, renderer, &frames, approach.track);
+                let frame_len = agent.bev.frame_len();
+                let index: BTreeMap<usize, usize> = projected
+                    .iter()
+                    .enumerate()
+                    .map(|(j, f)| (f.log_frame, j))
+                    .collect();
+                for (level, score) in levels.iter().zip(scores.iter_mut().skip(first_agent)) {
+                    let mut last = Action::Permitted;
+                    let mut goes = Vec::new();
+                    for &k in &approach.frames {
+                        let j = index[&k];
+                        // Four frames, oldest first, the first repeated at the start.
+                        let mut stack = Vec::with_capacity(frame_len * agent.bev.stack);
+                        for back in (0..agent.bev.stack).rev() {
+                            let i = j.saturating_sub(back);
+                            stack.extend_from_slice(&layers[i * frame_len..(i + 1) * frame_len]);
+                        }
+                        let mut scalars = vec![0.0f32; 6];
+                        scalars[0] = (projected[j].speed_mps / agent.speed_scale_mps) as f32;
+                        scalars[1] = (args.target_speed / agent.speed_scale_mps) as f32;
+                        scalars[2] = *level as f32;
+                        scalars[3 + last as usize] = 1.0;
+                        let observation = Observation {
+                            layers: stack,
+                            scalars,
+                        };
+                        let q = agent.policy.q_values(&[&observation]);
+                        last =
+                            Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
+                        goes.push(last == Action::Permitted);
+                    }
+                    score_approach(score, &name, approach, &frames, &goes);
+                }
+            }
+        }
+    }
+    for s in &mut scores {
+        s.finish();
+    }
+    let report = Report {
+        logs: args.logs.clone(),
+        map: args.map.clone(),
+        agent: args.agent.clone(),
+        labels,
+        approaches: n_approaches,
+        approaches_with_a_stop: n_stopped,
+        frames: frame_counts,
+        policies: scores,
+    };
+    let md = markdown(&report);
+    let dir = AtomicDir::create(&out, MARKERS)?;
+    write_json(&dir.path().join(REPLAY_JSON), &report)?;
+    write_file_atomic(&dir.path().join(REPLAY_MD), md.as_bytes())?;
+    let dest = dir.commit()?;
+    drop(progress);
+    ctx.ui.result(&md);
+    ctx.ui.info(&format!("wrote {}", dest.display()));
+    Ok(())
+}
+
+/// Scores one approach's decisions (`goes[i]` at the approach's i-th frame).
+fn score_approach(
+    score: &mut Score,
+    log: &str,
+    approach: &Approach,
+    frames: &[LogFrame],
+    goes: &[bool],
+) {
+    for (label, go) in approach.labels.iter().zip(goes) {
+        score.add(log, *label, *go);
+    }
+    if approach.stopped {
+        let time = |i: usize| frames[approach.frames[i]].time_ns as f64 * 1e-9;
+        let human = approach.labels.iter().position(|l| *l == Decision::Go);
+        let policy = goes.iter().position(|g| *g);
+        if let (Some(h), Some(p)) = (human, policy) {
+            score.delays.push(time(p) - time(h));
+        }
+    }
+}
+
+/// Distance from `track` to the nearest other vehicle on a roundabout's ring, m.
+fn nearest_circulating(map: &maps::Map, frame: &LogFrame, track: u32) -> f64 {
+    let Some(me) = frame.actors.iter().find(|a| a.id == track) else {
+        return f64::INFINITY;
+    };
+    frame
+        .actors
+        .iter()
+        .filter(|a| a.id != track)
+        .filter(|a| {
+            map.roundabouts
+                .values()
+                .any(|r| (a.position.distance(r.centre) - r.radius_m).abs() <= RING_HALF_WIDTH_M)
+        })
+        .map(|a| a.position.distance(me.position))
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn markdown(r: &Report) -> String {
+    let mut md = String::new();
+    let go = r.frames.get("go").copied().unwrap_or(0);
+    let wait = r.frames.get("wait").copied().unwrap_or(0);
+    let amb = r.frames.get("ambiguous").copied().unwrap_or(0);
+    let queued = r.frames.get("queued").copied().unwrap_or(0);
+    let _ = writeln!(
+        md,
+        "# Replay against human decisions\n\n{} logs, {} approaches to a yield line ({} with a stop); frames labelled go {go}, wait {wait}; not scored: ambiguous {amb}, queued behind another vehicle {queued}.\n",
+        r.logs.len(),
+        r.approaches,
+        r.approaches_with_a_stop
+    );
+    let _ = writeln!(
+        md,
+        "| policy | agreement | human go: policy go / wait | human wait: policy go / wait | mean go delay s |\n| --- | ---: | ---: | ---: | ---: |"
+    );
+    for s in &r.policies {
+        let cell = |h: &str| {
+            let c = s.confusion.get(h);
+            let n = |p: &str| c.and_then(|c| c.get(p)).copied().unwrap_or(0);
+            format!("{} / {}", n("go"), n("wait"))
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {:.1} % | {} | {} | {} |",
+            s.policy,
+            100.0 * s.agreement,
+            cell("go"),
+            cell("wait"),
+            s.mean_go_delay_s.map_or("-".into(), |d| format!("{d:+.2}"))
+        );
+    }
+    md
+}
