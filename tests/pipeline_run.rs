@@ -61,20 +61,37 @@ fn run(config: &Path, out: &Path) -> BTreeMap<String, String> {
     for line in report.lines() {
         let cells: Vec<&str> = line.split('|').map(str::trim).collect();
         if cells.len() == 5
-            && ["maps", "dataset", "augment", "segmenter", "agent", "logs"].contains(&cells[1])
+            && [
+                "maps",
+                "dataset",
+                "augment",
+                "segmenter",
+                "agent",
+                "logs",
+                "replay",
+            ]
+            .contains(&cells[1])
         {
             stages.insert(cells[1].to_owned(), cells[2].to_owned());
         }
     }
-    assert_eq!(stages.len(), 6, "{report}\n{}", stderr(&result));
+    assert_eq!(stages.len(), 7, "{report}\n{}", stderr(&result));
     stages
 }
 
 fn all(status: &str) -> BTreeMap<String, String> {
-    ["agent", "augment", "dataset", "logs", "maps", "segmenter"]
-        .iter()
-        .map(|s| ((*s).to_owned(), status.to_owned()))
-        .collect()
+    [
+        "agent",
+        "augment",
+        "dataset",
+        "logs",
+        "maps",
+        "replay",
+        "segmenter",
+    ]
+    .iter()
+    .map(|s| ((*s).to_owned(), status.to_owned()))
+    .collect()
 }
 
 #[test]
@@ -93,6 +110,7 @@ fn runs_every_stage_then_skips_what_did_not_change() {
         "## Segmenter",
         "## Roundabout-insertion agent",
         "## Logs",
+        "## Replay",
     ] {
         assert!(report.contains(section), "no {section} in\n{report}");
     }
@@ -115,7 +133,7 @@ fn runs_every_stage_then_skips_what_did_not_change() {
     for stage in ["dataset", "augment", "segmenter"] {
         assert_eq!(third[stage], "ran", "{third:?}");
     }
-    for stage in ["maps", "agent", "logs"] {
+    for stage in ["maps", "agent", "logs", "replay"] {
         assert_eq!(third[stage], "up to date (skipped)", "{third:?}");
     }
 
@@ -123,6 +141,8 @@ fn runs_every_stage_then_skips_what_did_not_change() {
     std::fs::write(out.join("logs/simulated/projection.json"), "{").unwrap();
     let fourth = run(&config, &out);
     assert_eq!(fourth["logs"], "ran", "{fourth:?}");
+    // The logs came out the same, so the replay that reads them is still up to date.
+    assert_eq!(fourth["replay"], "up to date (skipped)", "{fourth:?}");
     assert_eq!(fourth["agent"], "up to date (skipped)", "{fourth:?}");
     assert_eq!(
         read_json(&out.join("logs/simulated/projection.json"))["max_position_error_m"].as_f64(),

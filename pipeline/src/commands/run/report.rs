@@ -12,8 +12,8 @@ use serde_json::Value;
 use super::manifest::Manifest;
 use super::simlog::PROJECTION_JSON;
 use super::stages::{
-    AGENT_EVAL, AGENT_MODEL, AUGMENTED, CAMPUS_MAP, GENERATED, ROUNDABOUT_MAP, SEGMENTER_EVAL,
-    SEGMENTER_MODEL, SIMULATED_LOG, StageName,
+    AGENT_EVAL, AGENT_MODEL, AUGMENTED, CAMPUS_MAP, GENERATED, REPLAY, ROUNDABOUT_MAP,
+    SEGMENTER_EVAL, SEGMENTER_MODEL, SIMULATED_LOG, StageName,
 };
 use super::{MANIFEST_FILE, StageOutcome};
 use crate::output::write_file_atomic;
@@ -176,11 +176,22 @@ pub fn write(
             "\n## Logs\n\nSimulated drives written as MCAP logs: {episodes} (`{SIMULATED_LOG}`): {} frames, {} messages. \
              Read back and projected: largest footprint error {} m; bird's-eye pixels equal to the simulator's: {agreement}.\n\n\
              Real logs (INTERACTION tracks, ROS 2 bags) are not bundled: convert them with `pipeline logs convert` and \
-             inspect them with `pipeline logs info` (docs/logs.md). Their projection and the replay evaluation against \
-             human decisions are not implemented yet.",
+             inspect them with `pipeline logs info`, project them with `pipeline logs project` (docs/logs.md).",
             number(&p, "/frames", 0),
             number(&p, "/messages", 0),
             number(&p, "/max_position_error_m", 6),
+        );
+    }
+    if finished(StageName::Replay) {
+        let page =
+            std::fs::read_to_string(run_dir.join(REPLAY).join("replay.md")).unwrap_or_default();
+        let body: Vec<&str> = page.lines().filter(|l| !l.starts_with("# ")).collect();
+        let _ = writeln!(
+            md,
+            "\n## Replay\n\nThe agent and the baselines against the simulated drivers' go / wait decisions in the logs above \
+             (`{REPLAY}`; the same command judges them against real drivers: `pipeline replay eval --log <INTERACTION \
+             track file converted with logs convert> --map <its Lanelet2 map> --agent {AGENT_MODEL}`):\n{}",
+            body.join("\n").trim_end()
         );
     }
     let path = run_dir.join(REPORT_FILE);

@@ -236,3 +236,14 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
     dir.commit()?;
     Ok(())
 }
+
+/// The MCAP logs the stage wrote, in name order.
+pub fn logs_in(dir: &Path) -> Result<Vec<std::path::PathBuf>> {
+    let mut logs: Vec<_> = std::fs::read_dir(dir)
+        .with_context(|| format!("{}: cannot list", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    logs.sort();
+    Ok(logs)
+}

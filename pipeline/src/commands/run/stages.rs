@@ -39,16 +39,20 @@ pub enum StageName {
     Agent,
     /// Record simulated traffic as an MCAP log, read it back and project it.
     Logs,
+    /// Judge the agent and the baselines against the simulated drivers' go / wait decisions
+    /// in those logs.
+    Replay,
 }
 
 impl StageName {
-    pub const ALL: [StageName; 6] = [
+    pub const ALL: [StageName; 7] = [
         StageName::Maps,
         StageName::Dataset,
         StageName::Augment,
         StageName::Segmenter,
         StageName::Agent,
         StageName::Logs,
+        StageName::Replay,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -59,6 +63,7 @@ impl StageName {
             StageName::Segmenter => "segmenter",
             StageName::Agent => "agent",
             StageName::Logs => "logs",
+            StageName::Replay => "replay",
         }
     }
 
@@ -70,6 +75,7 @@ impl StageName {
             StageName::Augment => &[StageName::Dataset],
             StageName::Segmenter => &[StageName::Dataset, StageName::Augment],
             StageName::Agent | StageName::Logs => &[StageName::Maps],
+            StageName::Replay => &[StageName::Maps, StageName::Agent, StageName::Logs],
         }
     }
 
@@ -82,6 +88,7 @@ impl StageName {
             StageName::Segmenter => &[SEGMENTER_MODEL, SEGMENTER_EVAL],
             StageName::Agent => &[AGENT_MODEL, AGENT_EVAL],
             StageName::Logs => &[SIMULATED_LOG],
+            StageName::Replay => &[REPLAY],
         }
     }
 }
@@ -95,6 +102,7 @@ pub const SEGMENTER_EVAL: &str = "segmenter/eval";
 pub const AGENT_MODEL: &str = "agent/model";
 pub const AGENT_EVAL: &str = "agent/eval";
 pub const SIMULATED_LOG: &str = "logs/simulated";
+pub const REPLAY: &str = "replay";
 
 /// Everything a stage needs to run.
 #[derive(Debug)]
@@ -182,6 +190,7 @@ impl StageEnv<'_> {
                 "logs": serde_json::to_value(&p.logs)?,
                 "task": serde_json::to_value(&self.ctx.config.agent.task)?,
             }),
+            StageName::Replay => serde_json::json!({ "version": version }),
         })
     }
 
@@ -311,6 +320,22 @@ impl StageEnv<'_> {
             }
             StageName::Logs => {
                 super::simlog::record_and_project(self, &self.run_dir.join(SIMULATED_LOG))
+            }
+            StageName::Replay => {
+                let mut argv = args!["replay", "eval"].to_vec();
+                for log in super::simlog::logs_in(&self.run_dir.join(SIMULATED_LOG))? {
+                    argv.push("--log".into());
+                    argv.push(log.to_string_lossy().into_owned());
+                }
+                argv.extend(args![
+                    "--map",
+                    self.path(ROUNDABOUT_MAP),
+                    "--agent",
+                    self.path(AGENT_MODEL),
+                    "--out",
+                    self.path(REPLAY),
+                ]);
+                self.command(&argv)
             }
         }
     }
