@@ -17,6 +17,9 @@ use super::convert::OBJECTS_TOPIC;
 use super::decode::{Decoded, DecodedLog};
 use super::scenes::actors_from_detections;
 
+/// Least distance between the ego path's points, m.
+const PATH_SPACING_M: f64 = 1.0;
+
 /// The road users of one logged instant.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LogFrame {
@@ -90,8 +93,12 @@ pub fn project(
         .iter()
         .map(|&(k, _, i)| frames[k].actors[i].position)
         .fold(Vec::new(), |mut path, p| {
-            // A parked car's repeated positions would make a degenerate path.
-            if path.last().is_none_or(|q: &Point| q.distance(p) > 0.05) {
+            // Positions 10 times a second are centimetres apart at a crawl: every one a
+            // segment to draw, for no difference in a path 2 m wide on a 0.6 m grid.
+            if path
+                .last()
+                .is_none_or(|q: &Point| q.distance(p) >= PATH_SPACING_M)
+            {
                 path.push(p);
             }
             path
