@@ -19,7 +19,7 @@ use maps::Map;
 use maps::geometry::Point;
 use serde::{Deserialize, Serialize};
 
-use super::project::LogFrame;
+use super::project::{LogFrame, central_speeds};
 
 /// A driver's decision at one frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -112,7 +112,7 @@ pub fn approaches(map: &Map, frames: &[LogFrame], config: &LabelConfig) -> Vec<A
         .collect();
     let mut out = Vec::new();
     for (track, points) in &tracks {
-        let speeds = speeds(points);
+        let speeds = central_speeds(&points.iter().map(|p| (p.1, p.2)).collect::<Vec<_>>());
         // The first crossing of a yield line towards its ring.
         let crossing = points.windows(2).enumerate().find_map(|(j, w)| {
             let (a, b) = (w[0].2, w[1].2);
@@ -206,21 +206,6 @@ fn has_leader(frame: &LogFrame, track: u32, gap_m: f64) -> bool {
     })
 }
 
-/// Speeds along a track by central differences, m/s.
-fn speeds(points: &[(usize, u64, Point)]) -> Vec<f64> {
-    (0..points.len())
-        .map(|j| {
-            let (a, b) = (j.saturating_sub(1), (j + 1).min(points.len() - 1));
-            let dt = (points[b].1.saturating_sub(points[a].1)) as f64 * 1e-9;
-            if a == b || dt <= 0.0 {
-                0.0
-            } else {
-                points[a].2.distance(points[b].2) / dt
-            }
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -246,14 +231,5 @@ mod tests {
             p(-1.0, 0.0),
             p(1.0, 0.0)
         ));
-    }
-
-    #[test]
-    fn speeds_by_central_differences() {
-        let pts: Vec<(usize, u64, Point)> = (0..4)
-            .map(|i| (i, i as u64 * 100_000_000, Point::new(i as f64 * 0.5, 0.0)))
-            .collect();
-        let v = speeds(&pts);
-        assert!(v.iter().all(|s| (s - 5.0).abs() < 1e-9), "{v:?}");
     }
 }

@@ -103,25 +103,19 @@ pub fn project(
             }
             path
         });
-    let speed = |j: usize| -> f64 {
-        let (a, b) = (j.saturating_sub(1), (j + 1).min(track.len() - 1));
-        if a == b {
-            return 0.0;
-        }
-        let (pa, pb) = (
-            frames[track[a].0].actors[track[a].2].position,
-            frames[track[b].0].actors[track[b].2].position,
-        );
-        let dt = (track[b].1.saturating_sub(track[a].1)) as f64 * 1e-9;
-        if dt > 0.0 { pa.distance(pb) / dt } else { 0.0 }
-    };
+    let speeds = central_speeds(
+        &track
+            .iter()
+            .map(|&(k, t, i)| (t, frames[k].actors[i].position))
+            .collect::<Vec<_>>(),
+    );
     let frame_len = renderer.config().frame_len();
     let results: Vec<(ProjectedFrame, Vec<u8>)> = (0..track.len())
         .into_par_iter()
         .map_init(Vec::new, |out, j| {
             let (k, time_ns, i) = track[j];
             let mut actors = frames[k].actors.clone();
-            let speed_mps = speed(j);
+            let speed_mps = speeds[j];
             actors[i].speed_mps = speed_mps;
             let e = &actors[i];
             let figures = ProjectedFrame {
@@ -153,4 +147,35 @@ pub fn project(
         layers.extend_from_slice(&l);
     }
     (figures, layers)
+}
+
+/// Speeds along a track of (time ns, position) by central differences (one-sided at the
+/// ends), m/s; 0 where the times do not advance.
+pub(crate) fn central_speeds(track: &[(u64, Point)]) -> Vec<f64> {
+    (0..track.len())
+        .map(|j| {
+            let (a, b) = (j.saturating_sub(1), (j + 1).min(track.len() - 1));
+            let dt = (track[b].0.saturating_sub(track[a].0)) as f64 * 1e-9;
+            if a == b || dt <= 0.0 {
+                0.0
+            } else {
+                track[a].1.distance(track[b].1) / dt
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn speeds_by_central_differences() {
+        let track: Vec<(u64, Point)> = (0..4)
+            .map(|i| (i as u64 * 100_000_000, Point::new(i as f64 * 0.5, 0.0)))
+            .collect();
+        let v = central_speeds(&track);
+        assert!(v.iter().all(|s| (s - 5.0).abs() < 1e-9), "{v:?}");
+        assert_eq!(central_speeds(&track[..1]), vec![0.0]);
+    }
 }
