@@ -110,6 +110,32 @@ fn interaction_tracks_project_onto_the_real_roundabout() {
         2
     );
 
+    // Perception noise: the same seed gives the same frames with 1 or 2 threads, other
+    // frames than the clean ones, and the ego still at the centre of each.
+    let noisy = |name: &str, threads: &str| {
+        let dir = tmp.path().join(name);
+        let out = pipeline()
+            .env("RAYON_NUM_THREADS", threads)
+            .args(["--rerun", "off", "--seed", "3", "logs", "project"])
+            .arg(&log)
+            .arg("--map")
+            .arg(&map)
+            .args(["--ego", "60", "--previews", "0", "--position-noise", "0.5"])
+            .args(["--heading-noise", "5", "--path-noise", "1.5", "--out"])
+            .arg(&dir)
+            .output()
+            .unwrap();
+        assert_success(&out, name);
+        std::fs::read(dir.join("layers.bin")).unwrap()
+    };
+    let (one, two) = (noisy("noisy1", "1"), noisy("noisy2", "2"));
+    assert!(one == two, "noisy frames differ between thread counts");
+    assert_eq!(one.len(), bytes.len());
+    assert!(one != bytes, "noise changed nothing");
+    for frame in one.chunks_exact(frame_len) {
+        assert_eq!(frame[obstacles * w * h + centre], 255);
+    }
+
     // An ego the log does not have: one clear error, nothing written.
     let bad = tmp.path().join("bad");
     let out = pipeline()

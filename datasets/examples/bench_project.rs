@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use clap::Parser;
 use datasets::logs::decode::read_decoded;
+use datasets::logs::noise::NoiseConfig;
 use datasets::logs::project::{log_frames, project, track_lengths};
 use datasets::logs::source::{Log, ReadOptions};
 use sim::render::{BevConfig, BevRenderer};
@@ -48,7 +49,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         drawn = pool.install(|| {
             tracks
                 .iter()
-                .map(|&ego| project(&map, &renderer, &frames, ego).0.len())
+                .map(|&ego| {
+                    project(&map, &renderer, &frames, ego, &NoiseConfig::default())
+                        .0
+                        .len()
+                })
                 .sum()
         });
         let seconds = start.elapsed().as_secs_f64();

@@ -23,6 +23,7 @@ pub mod interaction;
 pub mod mcap_read;
 pub mod msgdefs;
 pub mod msgs;
+pub mod noise;
 pub mod project;
 pub mod scenes;
 pub mod source;

@@ -4,6 +4,7 @@
 //!
 //! The ego's path (the route layer in simulation) is the ego's own recorded trajectory:
 //! where the driver actually went. Speeds come from the positions (central differences).
+//! Perception noise ([`super::noise`]) may be laid over the other users and the path.
 
 use std::collections::BTreeMap;
 
@@ -15,6 +16,7 @@ use sim::{Actor, Scene};
 
 use super::convert::OBJECTS_TOPIC;
 use super::decode::{Decoded, DecodedLog};
+use super::noise::{NoiseConfig, bend_path, perturb_actors};
 use super::scenes::actors_from_detections;
 
 /// Least distance between the ego path's points, m.
@@ -69,14 +71,16 @@ pub struct ProjectedFrame {
     pub actors: usize,
 }
 
-/// The frames in which `ego` appears, drawn around it: the figures per frame and the
-/// layers of all of them (frame after frame, each `renderer.config().frame_len()` bytes).
-/// Frames are drawn in parallel; the result does not depend on the thread count.
+/// The frames in which `ego` appears, drawn around it with `noise`: the figures per frame
+/// (exact, without noise) and the layers of all of them (frame after frame, each
+/// `renderer.config().frame_len()` bytes). Frames are drawn in parallel; the result does
+/// not depend on the thread count.
 pub fn project(
     map: &maps::Map,
     renderer: &BevRenderer,
     frames: &[LogFrame],
     ego: u32,
+    noise: &NoiseConfig,
 ) -> (Vec<ProjectedFrame>, Vec<u8>) {
     // The ego's track: (log frame, time, actor index).
     let track: Vec<(usize, u64, usize)> = frames
@@ -103,6 +107,7 @@ pub fn project(
             }
             path
         });
+    let path = bend_path(&path, noise);
     let speeds = central_speeds(
         &track
             .iter()
@@ -117,7 +122,7 @@ pub fn project(
             let mut actors = frames[k].actors.clone();
             let speed_mps = speeds[j];
             actors[i].speed_mps = speed_mps;
-            let e = &actors[i];
+            let e = actors[i].clone();
             let figures = ProjectedFrame {
                 log_frame: k,
                 time_ns,
@@ -128,6 +133,7 @@ pub fn project(
                 speed_mps,
                 actors: actors.len(),
             };
+            perturb_actors(&mut actors, i, k as u64, noise);
             let scene = Scene {
                 map,
                 time_s: time_ns as f64 * 1e-9,

@@ -18,6 +18,7 @@ use anyhow::Result;
 use clap::{Args, Subcommand};
 use datasets::logs::decisions::{Approach, Decision, LabelConfig, approaches};
 use datasets::logs::decode::read_decoded;
+use datasets::logs::noise::NoiseConfig;
 use datasets::logs::project::{LogFrame, log_frames, project};
 use datasets::logs::source::{Log, ReadOptions};
 use models::dqn::{greedy_action, load_network, read_agent_description};
@@ -261,7 +262,13 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             }
             // The agent, once per aggressiveness level.
             if let (Some(agent), Some(renderer)) = (&agent, &renderer) {
-                let (projected, layers) = project(&map, renderer, &frames, approach.track);
+                let (projected, layers) = project(
+                    &map,
+                    renderer,
+                    &frames,
+                    approach.track,
+                    &NoiseConfig::default(),
+                );
                 let frame_len = agent.bev.frame_len();
                 let index: BTreeMap<usize, usize> = projected
                     .iter()

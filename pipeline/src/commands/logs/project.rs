@@ -14,6 +14,7 @@ use std::time::Instant;
 use anyhow::{Context as _, Result};
 use clap::Args;
 use datasets::logs::decode::read_decoded;
+use datasets::logs::noise::NoiseConfig;
 use datasets::logs::project::{LogFrame, log_frames, project, track_lengths};
 use datasets::logs::source::{Log, ReadOptions};
 use image::RgbImage;
@@ -60,6 +61,24 @@ pub struct ProjectArgs {
     /// Frames logged to the rerun recording (from the first).
     #[arg(long, value_name = "N", default_value_t = 300)]
     pub record_frames: usize,
+
+    /// Perception noise: standard deviation of the other users' positions (each
+    /// coordinate), m.
+    #[arg(long, value_name = "M", default_value_t = 0.0)]
+    pub position_noise: f64,
+
+    /// Perception noise: standard deviation of the other users' length and width, m.
+    #[arg(long, value_name = "M", default_value_t = 0.0)]
+    pub size_noise: f64,
+
+    /// Perception noise: standard deviation of the other users' heading, degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 0.0)]
+    pub heading_noise: f64,
+
+    /// Perception noise: the ego's path bent by a Bézier curve whose inner control points
+    /// move sideways by this standard deviation, m.
+    #[arg(long, value_name = "M", default_value_t = 0.0)]
+    pub path_noise: f64,
 }
 
 /// A frame's layers in colour: navigable grey, path green, stop lines yellow, vehicles red.
@@ -148,7 +167,28 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         lengths[&ego]
     ));
     let start = Instant::now();
-    let (figures, layers) = project(&map, &renderer, &frames, ego);
+    for (flag, v) in [
+        ("--position-noise", args.position_noise),
+        ("--size-noise", args.size_noise),
+        ("--heading-noise", args.heading_noise),
+        ("--path-noise", args.path_noise),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(CliError::new(
+                format!("{flag} {v}: a standard deviation must be 0 or more"),
+                "e.g. --position-noise 0.3",
+            )
+            .into());
+        }
+    }
+    let noise = NoiseConfig {
+        position_sigma_m: args.position_noise,
+        size_sigma_m: args.size_noise,
+        heading_sigma_deg: args.heading_noise,
+        path_sigma_m: args.path_noise,
+        seed: ctx.cli.seed,
+    };
+    let (figures, layers) = project(&map, &renderer, &frames, ego, &noise);
     let seconds = start.elapsed().as_secs_f64();
 
     let dir = AtomicDir::create(&out, MARKERS)?;
@@ -170,6 +210,7 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         "width": config.width,
         "height": config.height,
         "bev": config,
+        "noise": noise,
         "layers_file": LAYERS_BIN,
     });
     write(
