@@ -9,11 +9,13 @@
 //! - [`replay`]: the replay buffer (each observation stored once, run-length packed; n-step
 //!   returns; prioritised sampling over a [`sum_tree`]).
 //! - [`vec_env`]: environments stepped in parallel with rayon.
+//! - [`bc`]: behaviour cloning, a go / wait classifier on the agent's inputs.
 //! - [`policy`]: a trained Q-network as a [`sim::baselines::Policy`] for the evaluation harness.
 //!
 //! Backend: burn's `flex` CPU backend by default ([`cpu_device`]); the `cuda` and `wgpu`
 //! features add GPU backends.
 
+pub mod bc;
 pub mod dqn;
 pub mod error;
 pub mod packed;

@@ -21,6 +21,7 @@ use datasets::logs::decode::read_decoded;
 use datasets::logs::noise::NoiseConfig;
 use datasets::logs::project::{LogFrame, log_frames, project};
 use datasets::logs::source::{Log, ReadOptions};
+use models::bc::{self, BcConfig};
 use models::dqn::{greedy_action, load_network, read_agent_description};
 use models::policy::QPolicy;
 use serde::Serialize;
@@ -70,6 +71,15 @@ pub struct EvalArgs {
     /// The target speed the agent is told (the simulator gives the route's speed), m/s.
     #[arg(long, value_name = "MPS", default_value_t = 8.0)]
     pub target_speed: f64,
+
+    /// Logs to train a behaviour-cloning classifier of go / wait on (the same inputs as
+    /// the agent), evaluated beside the other policies; use other recordings than --log.
+    #[arg(long = "train-log", value_name = "FILE")]
+    pub train_logs: Vec<PathBuf>,
+
+    /// Behaviour cloning learns from every N-th go or wait frame of an approach.
+    #[arg(long, value_name = "N", default_value_t = 2)]
+    pub bc_stride: usize,
 
     /// Output folder: replay.json and replay.md (written atomically).
     #[arg(long, value_name = "DIR")]
@@ -148,19 +158,115 @@ struct Report {
     logs: Vec<PathBuf>,
     map: PathBuf,
     agent: Option<PathBuf>,
+    /// Logs behaviour cloning learnt from.
+    train_logs: Vec<PathBuf>,
     labels: LabelConfig,
+    behaviour_cloning: Option<bc::BcSummary>,
     approaches: usize,
     approaches_with_a_stop: usize,
     frames: BTreeMap<String, u64>,
     policies: Vec<Score>,
 }
 
-/// The agent and what it needs to see.
-struct Agent {
-    policy: QPolicy,
+/// What the policies that read the bird's-eye view (the agent, behaviour cloning) see.
+struct Views {
     bev: BevConfig,
+    renderer: BevRenderer,
     speed_scale_mps: f64,
+    target_speed_mps: f64,
 }
+
+impl Views {
+    /// Per frame of the approach: its layer stack (oldest first, the first frame repeated
+    /// at the start) and the vehicle's speed.
+    fn stacks(
+        &self,
+        map: &maps::Map,
+        frames: &[LogFrame],
+        approach: &Approach,
+    ) -> Vec<(Vec<u8>, f64)> {
+        let (projected, layers) = project(
+            map,
+            &self.renderer,
+            frames,
+            approach.track,
+            &NoiseConfig::default(),
+        );
+        let frame_len = self.bev.frame_len();
+        let index: BTreeMap<usize, usize> = projected
+            .iter()
+            .enumerate()
+            .map(|(j, f)| (f.log_frame, j))
+            .collect();
+        approach
+            .frames
+            .iter()
+            .map(|k| {
+                let j = index[k];
+                let mut stack = Vec::with_capacity(frame_len * self.bev.stack);
+                for back in (0..self.bev.stack).rev() {
+                    let i = j.saturating_sub(back);
+                    stack.extend_from_slice(&layers[i * frame_len..(i + 1) * frame_len]);
+                }
+                (stack, projected[j].speed_mps)
+            })
+            .collect()
+    }
+
+    /// The task's observation: layers, then speed, target speed, aggressiveness, last action.
+    fn observation(
+        &self,
+        stack: Vec<u8>,
+        speed: f64,
+        aggressiveness: f64,
+        last: Action,
+    ) -> Observation {
+        let mut scalars = vec![0.0f32; 3 + Action::ALL.len()];
+        scalars[0] = (speed / self.speed_scale_mps) as f32;
+        scalars[1] = (self.target_speed_mps / self.speed_scale_mps) as f32;
+        scalars[2] = aggressiveness as f32;
+        scalars[3 + last as usize] = 1.0;
+        Observation {
+            layers: stack,
+            scalars,
+        }
+    }
+
+    fn spec(&self) -> ObservationSpec {
+        ObservationSpec {
+            channels: self.bev.layers.len() * self.bev.stack,
+            height: self.bev.height,
+            width: self.bev.width,
+            scalars: 3 + Action::ALL.len(),
+        }
+    }
+}
+
+/// A log read into frames, with its approaches.
+struct ReplayLog {
+    name: String,
+    frames: Vec<LogFrame>,
+    approaches: Vec<Approach>,
+}
+
+fn read_log(map: &maps::Map, path: &std::path::Path, labels: &LabelConfig) -> Result<ReplayLog> {
+    let name = path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    let log = Log::open(path).map_err(log_error)?;
+    let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;
+    let frames: Vec<LogFrame> = log_frames(&decoded, None);
+    let approaches = approaches(map, &frames, labels);
+    Ok(ReplayLog {
+        name,
+        frames,
+        approaches,
+    })
+}
+
+/// Aggressiveness given to behaviour cloning (the drivers' own is unknown).
+const BC_AGGRESSIVENESS: f64 = 0.5;
 
 fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let out = ctx.output_path(&args.out);
@@ -176,35 +282,108 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         )
         .into());
     }
-    let agent = match &args.agent {
-        None => None,
+    let device = models::cpu_device();
+    // The agent, and the view it was trained on (behaviour cloning sees the same).
+    let (agent, bev, speed_scale_mps) = match &args.agent {
+        None => (
+            None,
+            BevConfig {
+                width: 42,
+                height: 42,
+                stack: 2,
+                ..BevConfig::default()
+            },
+            15.0,
+        ),
         Some(dir) => {
             progress.step(&format!("loading the agent {}", dir.display()));
-            let device = models::cpu_device();
             let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
             let task = read_task(dir)?;
             let network =
                 load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;
-            let bev = task.config.observation.clone();
-            let spec: ObservationSpec = description.shape.spec();
-            Some(Agent {
-                policy: QPolicy::new(network, spec, description.shape.actions, device),
-                bev,
-                speed_scale_mps: task.config.speed_scale_mps,
-            })
+            let policy = QPolicy::new(
+                network,
+                description.shape.spec(),
+                description.shape.actions,
+                device.clone(),
+            );
+            (
+                Some(policy),
+                task.config.observation.clone(),
+                task.config.speed_scale_mps,
+            )
         }
     };
-    let renderer = match &agent {
-        Some(a) => Some(
-            BevRenderer::new(&map, map.bounds(), a.bev.clone()).map_err(|e| {
-                CliError::file(
-                    &args.map,
-                    e.to_string(),
-                    "give the map the logs were recorded on",
-                )
-            })?,
-        ),
-        None => None,
+    let renderer = BevRenderer::new(&map, map.bounds(), bev.clone()).map_err(|e| {
+        CliError::file(
+            &args.map,
+            e.to_string(),
+            "give the map the logs were recorded on",
+        )
+    })?;
+    let views = Views {
+        bev,
+        renderer,
+        speed_scale_mps,
+        target_speed_mps: args.target_speed,
+    };
+    let labels = LabelConfig::default();
+
+    // Behaviour cloning on the training logs' go and wait frames.
+    let bc = if args.train_logs.is_empty() {
+        None
+    } else {
+        let mut observations = Vec::new();
+        let mut go = Vec::new();
+        for path in &args.train_logs {
+            progress.step(&format!("behaviour cloning: reading {}", path.display()));
+            let log = read_log(&map, path, &labels)?;
+            for approach in &log.approaches {
+                let stacks = views.stacks(&map, &log.frames, approach);
+                let mut last = Action::Permitted;
+                for (i, ((stack, speed), label)) in
+                    stacks.into_iter().zip(&approach.labels).enumerate()
+                {
+                    let decision = match label {
+                        Decision::Go => Some(true),
+                        Decision::Wait => Some(false),
+                        Decision::Ambiguous | Decision::Queued => None,
+                    };
+                    if let Some(d) = decision
+                        && i % args.bc_stride.max(1) == 0
+                    {
+                        observations.push(views.observation(stack, speed, BC_AGGRESSIVENESS, last));
+                        go.push(d);
+                    }
+                    // What the driver did last (ambiguous and queued count as waiting).
+                    last = if decision == Some(true) {
+                        Action::Permitted
+                    } else {
+                        Action::NotPermitted
+                    };
+                }
+            }
+        }
+        progress.step(&format!(
+            "behaviour cloning: training on {} frames",
+            observations.len()
+        ));
+        let config = BcConfig::default();
+        let (network, summary) = bc::train(
+            &observations,
+            &go,
+            &views.spec(),
+            &config,
+            ctx.cli.seed,
+            &device,
+        )
+        .map_err(|e| {
+            CliError::new(
+                format!("behaviour cloning: {e}"),
+                "give --train-log logs with approaches to the map's roundabout",
+            )
+        })?;
+        Some((network, summary))
     };
 
     let rules = [25.0, 20.0, 15.0, 10.0];
@@ -213,35 +392,34 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         .map(|t| Score::new(format!("rule {t} m")))
         .chain([Score::new("always go".into())])
         .collect();
+    let first_learnt = scores.len();
+    if bc.is_some() {
+        scores.push(Score::new("behaviour cloning".into()));
+    }
     let levels = if agent.is_some() {
         args.aggressiveness.clone()
     } else {
         Vec::new()
     };
-    let first_agent = scores.len();
     scores.extend(
         levels
             .iter()
             .map(|a| Score::new(format!("agent, aggressiveness {a}"))),
     );
-    let labels = LabelConfig::default();
     let mut frame_counts: BTreeMap<String, u64> = BTreeMap::new();
     let (mut n_approaches, mut n_stopped) = (0, 0);
 
     for path in &args.logs {
-        let name = path.file_name().map_or_else(
-            || path.display().to_string(),
-            |n| n.to_string_lossy().into_owned(),
-        );
-        progress.step(&format!("reading {name}"));
-        let log = Log::open(path).map_err(log_error)?;
-        let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;
-        let frames: Vec<LogFrame> = log_frames(&decoded, None);
-        let found = approaches(&map, &frames, &labels);
-        n_approaches += found.len();
-        n_stopped += found.iter().filter(|a| a.stopped).count();
-        progress.step(&format!("{name}: {} approaches", found.len()));
-        for approach in &found {
+        progress.step(&format!("reading {}", path.display()));
+        let log = read_log(&map, path, &labels)?;
+        n_approaches += log.approaches.len();
+        n_stopped += log.approaches.iter().filter(|a| a.stopped).count();
+        progress.step(&format!(
+            "{}: {} approaches",
+            log.name,
+            log.approaches.len()
+        ));
+        for approach in &log.approaches {
             for l in &approach.labels {
                 *frame_counts
                     .entry(format!("{l:?}").to_lowercase())
@@ -252,55 +430,55 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                 .frames
                 .iter()
                 .map(|&k| {
-                    let near = nearest_circulating(&map, &frames[k], approach.track);
+                    let near = nearest_circulating(&map, &log.frames[k], approach.track);
                     rules.iter().map(|t| near > *t).chain([true]).collect()
                 })
                 .collect();
-            for (p, score) in scores.iter_mut().enumerate().take(first_agent) {
+            for (p, score) in scores.iter_mut().enumerate().take(first_learnt) {
                 let goes: Vec<bool> = decisions.iter().map(|d| d[p]).collect();
-                score_approach(score, &name, approach, &frames, &goes);
+                score_approach(score, &log.name, approach, &log.frames, &goes);
+            }
+            if bc.is_none() && agent.is_none() {
+                continue;
+            }
+            let stacks = views.stacks(&map, &log.frames, approach);
+            let mut learnt = scores.iter_mut().skip(first_learnt);
+            let bc_score = if bc.is_some() { learnt.next() } else { None };
+            // Behaviour cloning, its own last decision fed back as the agent's is.
+            if let (Some((network, _)), Some(score)) = (&bc, bc_score) {
+                let mut last = Action::Permitted;
+                let mut goes = Vec::new();
+                for (stack, speed) in &stacks {
+                    let observation =
+                        views.observation(stack.clone(), *speed, BC_AGGRESSIVENESS, last);
+                    let go = bc::predict(
+                        network,
+                        std::slice::from_ref(&observation),
+                        &views.spec(),
+                        &device,
+                    )[0];
+                    last = if go {
+                        Action::Permitted
+                    } else {
+                        Action::NotPermitted
+                    };
+                    goes.push(go);
+                }
+                score_approach(score, &log.name, approach, &log.frames, &goes);
             }
             // The agent, once per aggressiveness level.
-            if let (Some(agent), Some(renderer)) = (&agent, &renderer) {
-                let (projected, layers) = project(
-                    &map,
-                    renderer,
-                    &frames,
-                    approach.track,
-                    &NoiseConfig::default(),
-                );
-                let frame_len = agent.bev.frame_len();
-                let index: BTreeMap<usize, usize> = projected
-                    .iter()
-                    .enumerate()
-                    .map(|(j, f)| (f.log_frame, j))
-                    .collect();
-                for (level, score) in levels.iter().zip(scores.iter_mut().skip(first_agent)) {
+            if let Some(policy) = &agent {
+                for (level, score) in levels.iter().zip(learnt) {
                     let mut last = Action::Permitted;
                     let mut goes = Vec::new();
-                    for &k in &approach.frames {
-                        let j = index[&k];
-                        // Four frames, oldest first, the first repeated at the start.
-                        let mut stack = Vec::with_capacity(frame_len * agent.bev.stack);
-                        for back in (0..agent.bev.stack).rev() {
-                            let i = j.saturating_sub(back);
-                            stack.extend_from_slice(&layers[i * frame_len..(i + 1) * frame_len]);
-                        }
-                        let mut scalars = vec![0.0f32; 6];
-                        scalars[0] = (projected[j].speed_mps / agent.speed_scale_mps) as f32;
-                        scalars[1] = (args.target_speed / agent.speed_scale_mps) as f32;
-                        scalars[2] = *level as f32;
-                        scalars[3 + last as usize] = 1.0;
-                        let observation = Observation {
-                            layers: stack,
-                            scalars,
-                        };
-                        let q = agent.policy.q_values(&[&observation]);
+                    for (stack, speed) in &stacks {
+                        let observation = views.observation(stack.clone(), *speed, *level, last);
+                        let q = policy.q_values(&[&observation]);
                         last =
                             Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
                         goes.push(last == Action::Permitted);
                     }
-                    score_approach(score, &name, approach, &frames, &goes);
+                    score_approach(score, &log.name, approach, &log.frames, &goes);
                 }
             }
         }
@@ -310,9 +488,11 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     }
     let report = Report {
         logs: args.logs.clone(),
+        train_logs: args.train_logs.clone(),
         map: args.map.clone(),
         agent: args.agent.clone(),
         labels,
+        behaviour_cloning: bc.map(|(_, summary)| summary),
         approaches: n_approaches,
         approaches_with_a_stop: n_stopped,
         frames: frame_counts,
