@@ -17,7 +17,9 @@
 Usage (from the repository root, with ../shared/data beside it):
     cargo build --release -p pipeline --example bench_augment -p datasets
     python3 scripts/bench_datasets.py [--runs 5] [--threads 1,2] [--images 100]
-        [--gen-count 2000] [--out docs/benchmarks/datasets.json]
+        [--gen-count 2000] [--out docs/benchmarks/datasets.json] [--skip-generation]
+    (--skip-generation needs no pipeline binary and keeps the generation figures of the
+    existing --out file, with their date.)
 """
 import argparse
 import json
@@ -175,7 +177,8 @@ def main():
     parser.add_argument("--skip-generation", action="store_true")
     args = parser.parse_args()
     threads = [int(t) for t in args.threads.split(",")]
-    for path in (args.pipeline, args.example):
+    needed = (args.example,) if args.skip_generation else (args.pipeline, args.example)
+    for path in needed:
         if not path.exists():
             raise SystemExit(f"{path} is missing: cargo build --release -p pipeline -p datasets --example bench_augment")
     if not (args.camvid / "train.txt").exists():
@@ -192,6 +195,11 @@ def main():
         "albumentations": albumentations.__version__, "opencv": cv2.__version__,
         "generation": [], "augmentation": [],
     }
+    if args.skip_generation and args.out.exists():
+        # Keep the last generation figures, with the date they were measured.
+        previous = json.loads(args.out.read_text())
+        report["generation"] = previous.get("generation", [])
+        report["generation_date"] = previous.get("generation_date", previous.get("date"))
     for t in [] if args.skip_generation else threads:
         gen = bench_generation(args.pipeline, args.gen_count, args.gen_runs, t)
         report["generation"].append(gen)

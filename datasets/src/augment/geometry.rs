@@ -144,89 +144,286 @@ impl Warp {
                 GrayImage::from_raw(size.0, size.1, label).unwrap_or_default(),
             );
         }
-        (self.warp_image(image), self.warp_label(label))
-    }
-
-    /// The source point of each output pixel centre, row by row.
-    fn source_points(&self, mut f: impl FnMut(usize, f32, f32)) {
-        let m = &self.to_source;
-        let affine = m[2] == [0.0, 0.0, 1.0];
-        let mut i = 0;
-        for y in 0..self.height {
-            let py = f64::from(y) + 0.5;
-            for x in 0..self.width {
-                let px = f64::from(x) + 0.5;
-                let (qx, qy) = if affine {
-                    (
-                        m[0][0] * px + m[0][1] * py + m[0][2],
-                        m[1][0] * px + m[1][1] * py + m[1][2],
-                    )
+        let (w, h) = (self.width as usize, self.height as usize);
+        let mut out_image = vec![0u8; w * h * 3];
+        let mut out_label = vec![IGNORE; w * h];
+        // (A label of another size than its image, never made by this crate, gives padding.)
+        if let Some(source) = Source::new(image, label) {
+            let m = &self.to_source;
+            let affine = m[2] == [0.0, 0.0, 1.0];
+            let rows = out_image
+                .chunks_exact_mut(w * 3)
+                .zip(out_label.chunks_exact_mut(w));
+            let mut warm = Warmer::default();
+            for (y, (image_row, label_row)) in rows.enumerate() {
+                let py = y as f64 + 0.5;
+                if affine {
+                    warm.rows_of(&source, m, py, w as f64);
+                    source.affine_row(m, py, image_row, label_row);
                 } else {
-                    apply(m, px, py)
-                };
-                f(i, qx as f32, qy as f32);
-                i += 1;
+                    source.perspective_row(m, py, image_row, label_row);
+                }
             }
         }
-    }
-
-    fn warp_image(&self, image: &RgbImage) -> RgbImage {
-        let (w, h) = (image.width() as i32, image.height() as i32);
-        let src = image.as_raw();
-        let mut out = vec![0u8; self.width as usize * self.height as usize * 3];
-        let tap = |x: i32, y: i32| -> [f32; 3] {
-            if x < 0 || y < 0 || x >= w || y >= h {
-                [0.0; 3]
-            } else {
-                let i = (y as usize * w as usize + x as usize) * 3;
-                [
-                    f32::from(src[i]),
-                    f32::from(src[i + 1]),
-                    f32::from(src[i + 2]),
-                ]
-            }
-        };
-        self.source_points(|i, qx, qy| {
-            // Bilinear between the four pixel centres around q.
-            let (fx, fy) = (qx - 0.5, qy - 0.5);
-            let (x0, y0) = (floor_i32(fx), floor_i32(fy));
-            let (ax, ay) = (fx - x0 as f32, fy - y0 as f32);
-            if x0 < -1 || y0 < -1 || x0 >= w || y0 >= h {
-                return;
-            }
-            let (a, b, c, d) = (
-                tap(x0, y0),
-                tap(x0 + 1, y0),
-                tap(x0, y0 + 1),
-                tap(x0 + 1, y0 + 1),
-            );
-            for k in 0..3 {
-                let top = a[k] + (b[k] - a[k]) * ax;
-                let bottom = c[k] + (d[k] - c[k]) * ax;
-                out[i * 3 + k] = super::colour::to_u8(top + (bottom - top) * ay);
-            }
-        });
-        RgbImage::from_raw(self.width, self.height, out).unwrap_or_default()
-    }
-
-    fn warp_label(&self, label: &GrayImage) -> GrayImage {
-        let (w, h) = (label.width() as f32, label.height() as f32);
-        let src = label.as_raw();
-        let stride = label.width() as usize;
-        let mut out = vec![IGNORE; self.width as usize * self.height as usize];
-        self.source_points(|i, qx, qy| {
-            if qx >= 0.0 && qy >= 0.0 && qx < w && qy < h {
-                out[i] = src[qy as usize * stride + qx as usize];
-            }
-        });
-        GrayImage::from_raw(self.width, self.height, out).unwrap_or_default()
+        (
+            RgbImage::from_raw(self.width, self.height, out_image).unwrap_or_default(),
+            GrayImage::from_raw(self.width, self.height, out_label).unwrap_or_default(),
+        )
     }
 }
 
-/// `v.floor() as i32` without the libm call (see `colour::to_u8`).
-fn floor_i32(v: f32) -> i32 {
-    let t = v as i32;
-    t - i32::from((t as f32) > v)
+/// Reads the input rows an affine warp is about to need in order, a little ahead, one byte
+/// per cache line: a rotated row walks the input diagonally, touching each input row at a
+/// few places, which the hardware prefetcher cannot follow, while a plain pass over whole
+/// rows streams them into the cache.
+#[derive(Debug, Default)]
+struct Warmer {
+    /// Input rows `0..next` have been read (or will not be needed).
+    next: i64,
+}
+
+impl Warmer {
+    /// Rows read beyond the lowest one the current output row needs.
+    const AHEAD: i64 = 4;
+
+    fn rows_of(&mut self, source: &Source, m: &Mat3, py: f64, width: f64) {
+        let y_at = |px: f64| m[1][0] * px + m[1][1] * py + m[1][2];
+        let (a, b) = (y_at(0.0), y_at(width));
+        if !(a.is_finite() && b.is_finite()) {
+            return;
+        }
+        let lo = (a.min(b).floor() as i64 - 1).clamp(0, source.height);
+        let hi = (a.max(b).floor() as i64 + 1 + Self::AHEAD).clamp(0, source.height);
+        self.next = self.next.max(lo);
+        if self.next >= hi {
+            return;
+        }
+        let stride = source.width as usize * 3;
+        let (start, end) = (self.next as usize * stride, hi as usize * stride);
+        let mut sum = 0u8;
+        for chunk in source.image[start..end].chunks(64) {
+            sum = sum.wrapping_add(chunk[0]);
+        }
+        let label_stride = source.width as usize;
+        let (start, end) = (
+            self.next as usize * label_stride,
+            hi as usize * label_stride,
+        );
+        for chunk in source.label[start..end].chunks(64) {
+            sum = sum.wrapping_add(chunk[0]);
+        }
+        std::hint::black_box(sum);
+        self.next = hi;
+    }
+}
+
+/// Fractional bits of the fixed-point source coordinates.
+const FRAC: u32 = 32;
+/// Bits of each axis' bilinear weight (OpenCV's `warpAffine` uses 5).
+const WBITS: u32 = 11;
+/// The weight of a whole pixel.
+const WONE: u32 = 1 << WBITS;
+/// Source coordinates are clamped to ±2^24 pixels (far outside any image: padding), so a
+/// fixed-point coordinate and a row's steps stay well inside i64.
+const LIMIT: f64 = (1u64 << 24) as f64;
+
+/// A source coordinate in fixed point, clamped (NaN becomes 0).
+fn to_fixed(v: f64) -> i64 {
+    (v.clamp(-LIMIT, LIMIT) * (1u64 << FRAC) as f64) as i64
+}
+
+/// The input of a warp as flat buffers.
+struct Source<'a> {
+    image: &'a [u8],
+    label: &'a [u8],
+    width: i64,
+    height: i64,
+}
+
+impl<'a> Source<'a> {
+    /// None for an empty input or an image and label of different sizes.
+    fn new(image: &'a RgbImage, label: &'a GrayImage) -> Option<Source<'a>> {
+        (image.dimensions() == label.dimensions() && image.width() > 0 && image.height() > 0).then(
+            || Source {
+                image: image.as_raw(),
+                label: label.as_raw(),
+                width: i64::from(image.width()),
+                height: i64::from(image.height()),
+            },
+        )
+    }
+
+    /// One output row of an affine warp. The source point moves by a constant step along
+    /// the row, so it is stepped in fixed point; where all four bilinear taps are inside the
+    /// input (the row's interior span, solved exactly) a loop without border tests runs.
+    fn affine_row(&self, m: &Mat3, py: f64, image_row: &mut [u8], label_row: &mut [u8]) {
+        let n = label_row.len();
+        // Fixed-point coordinates are those of the point minus half a pixel: their integer
+        // part is the top-left tap, their fraction the bilinear weight.
+        let qx = m[0][0] * 0.5 + m[0][1] * py + m[0][2] - 0.5;
+        let qy = m[1][0] * 0.5 + m[1][1] * py + m[1][2] - 0.5;
+        let end = n as f64;
+        let in_range = |v: f64| v.abs() < LIMIT;
+        if ![qx, qy, qx + m[0][0] * end, qy + m[1][0] * end]
+            .into_iter()
+            .all(in_range)
+        {
+            // Far outside (or not finite): per pixel, with clamping.
+            return self.perspective_row(m, py, image_row, label_row);
+        }
+        let (fx, fy) = (to_fixed(qx), to_fixed(qy));
+        let (dx, dy) = (to_fixed(m[0][0]), to_fixed(m[1][0]));
+        let (lo, hi) =
+            interior_span(fx, dx, self.width, n).intersect(interior_span(fy, dy, self.height, n));
+        let (lo, hi) = (lo.min(n), hi.clamp(lo.min(n), n));
+        let point = |x: usize| (fx + x as i64 * dx, fy + x as i64 * dy);
+        for x in (0..lo).chain(hi..n) {
+            let (px, py) = point(x);
+            let (pixel, label) = self.sample_edge(px, py);
+            image_row[x * 3..x * 3 + 3].copy_from_slice(&pixel);
+            label_row[x] = label;
+        }
+        let (px, py) = point(lo);
+        self.interior(
+            px,
+            py,
+            dx,
+            dy,
+            &mut image_row[lo * 3..hi * 3],
+            &mut label_row[lo..hi],
+        );
+    }
+
+    /// One output row of a general (perspective) warp: each point mapped on its own.
+    fn perspective_row(&self, m: &Mat3, py: f64, image_row: &mut [u8], label_row: &mut [u8]) {
+        for (x, (pixel, label)) in image_row
+            .chunks_exact_mut(3)
+            .zip(label_row.iter_mut())
+            .enumerate()
+        {
+            let (qx, qy) = apply(m, x as f64 + 0.5, py);
+            let (p, l) = self.sample_edge(to_fixed(qx - 0.5), to_fixed(qy - 0.5));
+            pixel.copy_from_slice(&p);
+            *label = l;
+        }
+    }
+
+    /// Bilinear image value and nearest label at fixed-point point `(fx, fy)` (minus half a
+    /// pixel), any taps outside the input being black / ignore.
+    fn sample_edge(&self, fx: i64, fy: i64) -> ([u8; 3], u8) {
+        let (x0, y0) = (fx >> FRAC, fy >> FRAC);
+        let (wx, wy) = (weight(fx), weight(fy));
+        let inside = |x: i64, y: i64| x >= 0 && y >= 0 && x < self.width && y < self.height;
+        let tap = |x: i64, y: i64| -> [u32; 3] {
+            if inside(x, y) {
+                let i = (y * self.width + x) as usize * 3;
+                [0, 1, 2].map(|k| u32::from(self.image[i + k]))
+            } else {
+                [0; 3]
+            }
+        };
+        let (a, b, c, d) = (
+            tap(x0, y0),
+            tap(x0 + 1, y0),
+            tap(x0, y0 + 1),
+            tap(x0 + 1, y0 + 1),
+        );
+        let pixel = [0, 1, 2].map(|k| bilinear(a[k], b[k], c[k], d[k], wx, wy));
+        // The pixel containing the point: the nearer tap on each axis.
+        let (lx, ly) = (
+            x0 + i64::from(wx >= WONE / 2),
+            y0 + i64::from(wy >= WONE / 2),
+        );
+        let label = if inside(lx, ly) {
+            self.label[(ly * self.width + lx) as usize]
+        } else {
+            IGNORE
+        };
+        (pixel, label)
+    }
+
+    /// The interior of an affine row: every point's four taps are inside the input.
+    fn interior(
+        &self,
+        mut fx: i64,
+        mut fy: i64,
+        dx: i64,
+        dy: i64,
+        image_row: &mut [u8],
+        label_row: &mut [u8],
+    ) {
+        let stride = self.width as usize * 3;
+        let label_stride = self.width as usize;
+        for (pixel, label) in image_row.chunks_exact_mut(3).zip(label_row.iter_mut()) {
+            let (x0, y0) = ((fx >> FRAC) as usize, (fy >> FRAC) as usize);
+            let (wx, wy) = (weight(fx), weight(fy));
+            let i = y0 * stride + x0 * 3;
+            let top = &self.image[i..i + 6];
+            let bottom = &self.image[i + stride..i + stride + 6];
+            for k in 0..3 {
+                pixel[k] = bilinear(
+                    u32::from(top[k]),
+                    u32::from(top[k + 3]),
+                    u32::from(bottom[k]),
+                    u32::from(bottom[k + 3]),
+                    wx,
+                    wy,
+                );
+            }
+            let (lx, ly) = (
+                x0 + usize::from(wx >= WONE / 2),
+                y0 + usize::from(wy >= WONE / 2),
+            );
+            *label = self.label[ly * label_stride + lx];
+            fx += dx;
+            fy += dy;
+        }
+    }
+}
+
+/// The bilinear weight of the right (lower) taps: the fraction of a fixed-point coordinate
+/// in `WBITS` bits.
+fn weight(f: i64) -> u32 {
+    ((f >> (FRAC - WBITS)) as u32) & (WONE - 1)
+}
+
+/// Bilinear interpolation of taps `a b / c d` with weights `wx`, `wy` of `b` and `c`
+/// (out of `WONE`), rounded. Equal taps give their value exactly.
+fn bilinear(a: u32, b: u32, c: u32, d: u32, wx: u32, wy: u32) -> u8 {
+    let top = a * (WONE - wx) + b * wx;
+    let bottom = c * (WONE - wx) + d * wx;
+    ((top * (WONE - wy) + bottom * wy + (1 << (2 * WBITS - 1))) >> (2 * WBITS)) as u8
+}
+
+/// The `x` in `0..n` (as `lo..hi`, maybe empty) where the fixed-point coordinate
+/// `f + x·d` has both its taps, `⌊·⌋` and `⌊·⌋ + 1`, in `0..size`.
+fn interior_span(f: i64, d: i64, size: i64, n: usize) -> Span {
+    let (f, d) = (i128::from(f), i128::from(d));
+    // 0 <= f + x·d < (size - 1)·2^FRAC.
+    let limit = i128::from(size - 1) << FRAC;
+    let n = n as i128;
+    let (lo, hi) = if d == 0 {
+        if 0 <= f && f < limit { (0, n) } else { (0, 0) }
+    } else if d > 0 {
+        // x >= ceil(-f / d), x <= floor((limit - 1 - f) / d).
+        (-(f.div_euclid(d)), (limit - 1 - f).div_euclid(d) + 1)
+    } else {
+        let e = -d;
+        // x <= floor(f / e), x >= floor((f - limit) / e) + 1.
+        ((f - limit).div_euclid(e) + 1, f.div_euclid(e) + 1)
+    };
+    let clamp = |v: i128| v.clamp(0, n) as usize;
+    Span(clamp(lo), clamp(hi))
+}
+
+/// A half-open range of output columns.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Span(usize, usize);
+
+impl Span {
+    fn intersect(self, other: Span) -> (usize, usize) {
+        (self.0.max(other.0), self.1.min(other.1))
+    }
 }
 
 /// An exact copy: output (x, y) takes input (sx·x + tx, sy·y + ty).
@@ -342,6 +539,152 @@ mod tests {
         }
         assert!(homography(&from, &[[0.0, 0.0]; 4]).is_none());
         Ok(())
+    }
+
+    /// The warp computed the plain way: each output pixel centre mapped in f64, bilinear
+    /// taps in f64 with black outside, the label from the pixel containing the point.
+    /// Also returns, per pixel, whether the point lies within 1e-6 of a pixel edge (where
+    /// fixed-point rounding may pick the neighbouring label).
+    fn reference(warp: &Warp, img: &RgbImage, lab: &GrayImage) -> (RgbImage, GrayImage, Vec<bool>) {
+        let (w, h) = (i64::from(img.width()), i64::from(img.height()));
+        let mut out = RgbImage::new(warp.width, warp.height);
+        let mut out_lab = GrayImage::from_pixel(warp.width, warp.height, image::Luma([IGNORE]));
+        let mut ambiguous = Vec::new();
+        for y in 0..warp.height {
+            for x in 0..warp.width {
+                let (qx, qy) = apply(&warp.to_source, f64::from(x) + 0.5, f64::from(y) + 0.5);
+                let (fx, fy) = (qx - 0.5, qy - 0.5);
+                let (x0, y0) = (fx.floor(), fy.floor());
+                let (ax, ay) = (fx - x0, fy - y0);
+                let (x0, y0) = (x0 as i64, y0 as i64);
+                let tap = |tx: i64, ty: i64, k: usize| {
+                    if tx < 0 || ty < 0 || tx >= w || ty >= h {
+                        0.0
+                    } else {
+                        f64::from(img.get_pixel(tx as u32, ty as u32).0[k])
+                    }
+                };
+                let p = [0, 1, 2].map(|k| {
+                    let top = tap(x0, y0, k) * (1.0 - ax) + tap(x0 + 1, y0, k) * ax;
+                    let bottom = tap(x0, y0 + 1, k) * (1.0 - ax) + tap(x0 + 1, y0 + 1, k) * ax;
+                    (top * (1.0 - ay) + bottom * ay).round() as u8
+                });
+                out.put_pixel(x, y, image::Rgb(p));
+                let (lx, ly) = (qx.floor() as i64, qy.floor() as i64);
+                if lx >= 0 && ly >= 0 && lx < w && ly < h {
+                    out_lab.put_pixel(x, y, *lab.get_pixel(lx as u32, ly as u32));
+                }
+                let near_edge = |v: f64| (v - v.round()).abs() < 1e-6;
+                ambiguous.push(near_edge(qx) || near_edge(qy));
+            }
+        }
+        (out, out_lab, ambiguous)
+    }
+
+    #[test]
+    fn fixed_point_warps_match_the_plain_computation() {
+        let scene = |w: u32, h: u32| {
+            (
+                RgbImage::from_fn(w, h, |x, y| {
+                    image::Rgb([
+                        (x * 37 + y * 11) as u8,
+                        (x * x + 3 * y) as u8,
+                        (y * 53) as u8,
+                    ])
+                }),
+                GrayImage::from_fn(w, h, |x, y| image::Luma([((x * 7 + y * 3) % 5) as u8])),
+            )
+        };
+        let corners = [[3.0, -2.0], [40.0, 4.0], [35.0, 30.0], [-4.0, 27.0]];
+        let mut cases = Vec::new();
+        for (w, h) in [(37, 29), (1, 1), (2, 3), (5, 1)] {
+            let id = Warp::identity(w, h);
+            cases.push((w, h, id.rotate(7.3)));
+            cases.push((w, h, id.rotate(-9.9).hflip()));
+            cases.push((w, h, id.crop(1, 0, w.max(2) - 1, h).rotate(3.0).hflip()));
+            cases.push((w, h, id.scale(1.7).rotate(45.0)));
+            cases.push((w, h, id.scale(0.4)));
+            cases.push((w, h, id.scale(2.0)));
+            cases.push((w, h, id.rotate(180.0)));
+            cases.push((w, h, id.rotate(90.0).scale(1.3)));
+            cases.push((w, h, id.crop(0, 0, w + 9, h + 4).rotate(1.0)));
+            if let Some(p) = id.perspective(&corners) {
+                cases.push((w, h, p));
+            }
+        }
+        // Entirely outside the input.
+        cases.push((
+            9,
+            9,
+            Warp {
+                width: 6,
+                height: 5,
+                to_source: [[0.9, 0.1, 50.0], [-0.1, 1.0, -30.0], [0.0, 0.0, 1.0]],
+            },
+        ));
+        for (w, h, warp) in cases {
+            let (img, lab) = scene(w, h);
+            let (fast, fast_lab) = warp.run(&img, &lab);
+            let (slow, slow_lab, ambiguous) = reference(&warp, &img, &lab);
+            assert_eq!(fast.dimensions(), slow.dimensions());
+            for (i, ((f, s), (fl, sl))) in fast
+                .pixels()
+                .zip(slow.pixels())
+                .zip(fast_lab.pixels().zip(slow_lab.pixels()))
+                .enumerate()
+            {
+                for k in 0..3 {
+                    let diff = (i32::from(f.0[k]) - i32::from(s.0[k])).abs();
+                    assert!(diff <= 1, "{w}x{h} {warp:?} pixel {i}: {f:?} vs {s:?}");
+                }
+                assert!(
+                    fl == sl || ambiguous[i],
+                    "{w}x{h} {warp:?} label {i}: {fl:?} vs {sl:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn interior_spans_are_exact() {
+        let one = 1i64 << FRAC;
+        for size in [1i64, 2, 3, 10] {
+            for f in [
+                -3 * one - 5,
+                -one,
+                -1,
+                0,
+                1,
+                one / 2,
+                one,
+                4 * one + 7,
+                20 * one,
+            ] {
+                for d in [
+                    0,
+                    1,
+                    -1,
+                    one / 3,
+                    -one / 3,
+                    one,
+                    -one,
+                    3 * one,
+                    -2 * one - 1,
+                ] {
+                    let n = 12;
+                    let Span(lo, hi) = interior_span(f, d, size, n);
+                    for x in 0..n {
+                        let t = (f + x as i64 * d) >> FRAC;
+                        let inside = t >= 0 && t + 1 < size;
+                        assert_eq!(
+                            inside,
+                            (lo..hi).contains(&x),
+                            "f {f} d {d} size {size} x {x}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

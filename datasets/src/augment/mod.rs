@@ -17,6 +17,7 @@ pub mod geometry;
 #[cfg(test)]
 mod properties;
 
+use std::borrow::Cow;
 use std::path::Path;
 
 use image::{GrayImage, RgbImage};
@@ -114,8 +115,10 @@ impl Op {
 /// Applies ops to an image and its label (see the module docs). Errors only for ops that
 /// cannot be carried out (a degenerate perspective, a failed JPEG round trip).
 pub fn apply(ops: &[Op], image: &RgbImage, label: &GrayImage) -> Result<(RgbImage, GrayImage)> {
-    let mut image = image.clone();
-    let mut label = label.clone();
+    // Borrowed until an op changes them: a warp writes new buffers, so the input is never
+    // copied when the chain starts with one.
+    let mut image = Cow::Borrowed(image);
+    let mut label = Cow::Borrowed(label);
     let mut warp: Option<Warp> = None;
     for op in ops {
         if op.is_geometric() {
@@ -138,31 +141,29 @@ pub fn apply(ops: &[Op], image: &RgbImage, label: &GrayImage) -> Result<(RgbImag
             continue;
         }
         if let Some(w) = warp.take() {
-            (image, label) = w.run(&image, &label);
+            let (i, l) = w.run(&image, &label);
+            (image, label) = (Cow::Owned(i), Cow::Owned(l));
         }
+        let image = image.to_mut();
         match op {
-            Op::Brightness { delta } => colour::brightness(&mut image, *delta),
-            Op::Contrast { factor } => colour::contrast(&mut image, *factor),
-            Op::Gamma { gamma } => colour::gamma(&mut image, *gamma),
-            Op::Hue { degrees } => colour::hue(&mut image, *degrees),
-            Op::Saturation { factor } => colour::saturation(&mut image, *factor),
-            Op::Fog { density, horizon } => colour::fog(&mut image, *density, *horizon),
-            Op::Shadow { polygon, darkness } => colour::shadow(&mut image, polygon, *darkness),
-            Op::GaussianBlur { sigma } => filters::gaussian_blur(&mut image, *sigma),
-            Op::MotionBlur { length, degrees } => {
-                filters::motion_blur(&mut image, *length, *degrees)
-            }
-            Op::GaussianNoise { sigma, seed } => filters::gaussian_noise(&mut image, *sigma, *seed),
-            Op::Jpeg { quality } => {
-                filters::jpeg(&mut image, *quality).map_err(DatasetError::Config)?
-            }
+            Op::Brightness { delta } => colour::brightness(image, *delta),
+            Op::Contrast { factor } => colour::contrast(image, *factor),
+            Op::Gamma { gamma } => colour::gamma(image, *gamma),
+            Op::Hue { degrees } => colour::hue(image, *degrees),
+            Op::Saturation { factor } => colour::saturation(image, *factor),
+            Op::Fog { density, horizon } => colour::fog(image, *density, *horizon),
+            Op::Shadow { polygon, darkness } => colour::shadow(image, polygon, *darkness),
+            Op::GaussianBlur { sigma } => filters::gaussian_blur(image, *sigma),
+            Op::MotionBlur { length, degrees } => filters::motion_blur(image, *length, *degrees),
+            Op::GaussianNoise { sigma, seed } => filters::gaussian_noise(image, *sigma, *seed),
+            Op::Jpeg { quality } => filters::jpeg(image, *quality).map_err(DatasetError::Config)?,
             _ => {}
         }
     }
     if let Some(w) = warp {
-        (image, label) = w.run(&image, &label);
+        return Ok(w.run(&image, &label));
     }
-    Ok((image, label))
+    Ok((image.into_owned(), label.into_owned()))
 }
 
 /// A transform's chance and its parameter range `[low, high]` (drawn uniformly).
