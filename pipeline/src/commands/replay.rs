@@ -213,19 +213,22 @@ impl Views {
             .collect()
     }
 
-    /// The task's observation: layers, then speed, target speed, aggressiveness, last action.
+    /// The task's observation: layers, then speed, target speed, aggressiveness, last action
+    /// (all zero for none).
     fn observation(
         &self,
         stack: Vec<u8>,
         speed: f64,
         aggressiveness: f64,
-        last: Action,
+        last: Option<Action>,
     ) -> Observation {
         let mut scalars = vec![0.0f32; 3 + Action::ALL.len()];
         scalars[0] = (speed / self.speed_scale_mps) as f32;
         scalars[1] = (self.target_speed_mps / self.speed_scale_mps) as f32;
         scalars[2] = aggressiveness as f32;
-        scalars[3 + last as usize] = 1.0;
+        if let Some(last) = last {
+            scalars[3 + last as usize] = 1.0;
+        }
         Observation {
             layers: stack,
             scalars,
@@ -265,7 +268,10 @@ fn read_log(map: &maps::Map, path: &std::path::Path, labels: &LabelConfig) -> Re
     })
 }
 
-/// Aggressiveness given to behaviour cloning (the drivers' own is unknown).
+/// Aggressiveness given to behaviour cloning (the drivers' own is unknown). It gets no last
+/// action: in training that would be the driver's previous decision, which nearly always
+/// equals the current one, so the classifier would learn to repeat it and, fed its own
+/// decisions, never change its mind.
 const BC_AGGRESSIVENESS: f64 = 0.5;
 
 fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
@@ -340,27 +346,18 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             let log = read_log(&map, path, &labels)?;
             for approach in &log.approaches {
                 let stacks = views.stacks(&map, &log.frames, approach);
-                let mut last = Action::Permitted;
                 for (i, ((stack, speed), label)) in
                     stacks.into_iter().zip(&approach.labels).enumerate()
                 {
                     let decision = match label {
-                        Decision::Go => Some(true),
-                        Decision::Wait => Some(false),
-                        Decision::Ambiguous | Decision::Queued => None,
+                        Decision::Go => true,
+                        Decision::Wait => false,
+                        Decision::Ambiguous | Decision::Queued => continue,
                     };
-                    if let Some(d) = decision
-                        && i % args.bc_stride.max(1) == 0
-                    {
-                        observations.push(views.observation(stack, speed, BC_AGGRESSIVENESS, last));
-                        go.push(d);
+                    if i % args.bc_stride.max(1) == 0 {
+                        observations.push(views.observation(stack, speed, BC_AGGRESSIVENESS, None));
+                        go.push(decision);
                     }
-                    // What the driver did last (ambiguous and queued count as waiting).
-                    last = if decision == Some(true) {
-                        Action::Permitted
-                    } else {
-                        Action::NotPermitted
-                    };
                 }
             }
         }
@@ -444,26 +441,15 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             let stacks = views.stacks(&map, &log.frames, approach);
             let mut learnt = scores.iter_mut().skip(first_learnt);
             let bc_score = if bc.is_some() { learnt.next() } else { None };
-            // Behaviour cloning, its own last decision fed back as the agent's is.
+            // Behaviour cloning, on each frame as it is.
             if let (Some((network, _)), Some(score)) = (&bc, bc_score) {
-                let mut last = Action::Permitted;
-                let mut goes = Vec::new();
-                for (stack, speed) in &stacks {
-                    let observation =
-                        views.observation(stack.clone(), *speed, BC_AGGRESSIVENESS, last);
-                    let go = bc::predict(
-                        network,
-                        std::slice::from_ref(&observation),
-                        &views.spec(),
-                        &device,
-                    )[0];
-                    last = if go {
-                        Action::Permitted
-                    } else {
-                        Action::NotPermitted
-                    };
-                    goes.push(go);
-                }
+                let observations: Vec<Observation> = stacks
+                    .iter()
+                    .map(|(stack, speed)| {
+                        views.observation(stack.clone(), *speed, BC_AGGRESSIVENESS, None)
+                    })
+                    .collect();
+                let goes = bc::predict(network, &observations, &views.spec(), &device);
                 score_approach(score, &log.name, approach, &log.frames, &goes);
             }
             // The agent, once per aggressiveness level.
@@ -472,7 +458,8 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                     let mut last = Action::Permitted;
                     let mut goes = Vec::new();
                     for (stack, speed) in &stacks {
-                        let observation = views.observation(stack.clone(), *speed, *level, last);
+                        let observation =
+                            views.observation(stack.clone(), *speed, *level, Some(last));
                         let q = policy.q_values(&[&observation]);
                         last =
                             Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
