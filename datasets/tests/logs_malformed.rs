@@ -301,3 +301,62 @@ fn db3_with_missing_tables_and_broken_rows() {
     let e = Log::open(&bag).unwrap_err().to_string();
     assert!(e.contains("metadata.yaml"), "{e}");
 }
+
+/// Regression, found by the `mcap_reader` fuzz target (fuzz/): an Attachment record whose
+/// fields end less than 4 bytes before the record's end (no room for its CRC) made the `mcap`
+/// crate's `parse_record` panic on a slice index. Now it is an error naming the file outside a
+/// chunk, and a skipped chunk inside one. Needs no shared data.
+#[test]
+fn attachment_without_room_for_its_crc() {
+    fn record(opcode: u8, body: &[u8]) -> Vec<u8> {
+        let mut r = vec![opcode];
+        r.extend((body.len() as u64).to_le_bytes());
+        r.extend(body);
+        r
+    }
+    fn file(data_records: &[u8]) -> Vec<u8> {
+        let mut f = datasets::logs::source::MCAP_MAGIC.to_vec();
+        f.extend(record(0x01, &[0; 8])); // Header: profile "", library ""
+        f.extend(data_records);
+        f.extend(record(0x0f, &[0; 4])); // DataEnd, CRC not computed
+        f.extend(record(0x02, &[0; 20])); // Footer without a summary
+        f.extend(datasets::logs::source::MCAP_MAGIC);
+        f
+    }
+    // log_time, create_time, name "", media_type "", data_len 0; then `crc_bytes` of a CRC.
+    let attachment = |crc_bytes: usize| {
+        let mut body = vec![0u8; 16 + 4 + 4 + 8];
+        body.extend(vec![0u8; crc_bytes]);
+        record(0x09, &body)
+    };
+    for crc_bytes in 0..4 {
+        let e = read_bytes(&file(&attachment(crc_bytes)), Limits::default())
+            .unwrap_err()
+            .to_string();
+        println!("attachment with {crc_bytes} CRC bytes: {e}");
+        assert!(
+            e.starts_with("corpus.mcap: ") && e.contains("too short for its fields, data and CRC"),
+            "{e}"
+        );
+    }
+    let (n, report) = read_bytes(&file(&attachment(4)), Limits::default()).unwrap();
+    assert_eq!((n, report.has_skips()), (0, false));
+
+    // The same record inside an uncompressed chunk: the chunk is skipped, the read goes on.
+    let records = attachment(2);
+    let mut chunk = Vec::new();
+    chunk.extend(0u64.to_le_bytes()); // message_start_time
+    chunk.extend(0u64.to_le_bytes()); // message_end_time
+    chunk.extend((records.len() as u64).to_le_bytes()); // uncompressed_size
+    chunk.extend(0u32.to_le_bytes()); // uncompressed_crc (not computed)
+    chunk.extend(0u32.to_le_bytes()); // compression ""
+    chunk.extend((records.len() as u64).to_le_bytes()); // compressed_size
+    chunk.extend(&records);
+    let (n, report) = read_bytes(&file(&record(0x06, &chunk)), Limits::default()).unwrap();
+    assert_eq!((n, report.skipped_chunks.len()), (0, 1));
+    assert!(
+        report.skipped_chunks[0].contains("too short for its fields"),
+        "{:?}",
+        report.skipped_chunks
+    );
+}

@@ -136,7 +136,7 @@ pub fn read_records<R: Read>(
                 if opcode == op::MESSAGE_INDEX {
                     continue;
                 }
-                let record = mcap::parse_record(opcode, data).map_err(|e| {
+                let record = parse_record(opcode, data).map_err(|e| {
                     fail(format!(
                         "bad {} record before byte {fed}: {e}",
                         opcode_name(opcode)
@@ -210,7 +210,7 @@ fn visit_chunk(
         {
             return Ok(());
         }
-        let record = mcap::parse_record(opcode, body)
+        let record = parse_record(opcode, body)
             .map_err(|e| format!("bad {} record inside the chunk: {e}", opcode_name(opcode)))?;
         parsed.push(record);
         Ok(())
@@ -286,6 +286,56 @@ fn unpack_chunk<'a>(
         }
     }
     Ok(records)
+}
+
+/// [`mcap::parse_record`], with the record layouts it would panic on turned into errors.
+///
+/// mcap 0.26 slices an Attachment body as if its trailing 4-byte CRC were always there
+/// (`body[header_len..body.len() - 4]`), so an Attachment whose fields end less than 4 bytes
+/// before the record's end panics there (found by the `mcap_reader` fuzz target).
+pub fn parse_record(opcode: u8, body: &[u8]) -> Result<Record<'_>, String> {
+    if opcode == op::ATTACHMENT {
+        check_attachment_layout(body)?;
+    }
+    mcap::parse_record(opcode, body).map_err(|e| e.to_string())
+}
+
+/// An Attachment body must hold log_time, create_time, name, media_type, data_len, the data
+/// and a CRC, in that order (bytes after the CRC are padding).
+fn check_attachment_layout(body: &[u8]) -> Result<(), String> {
+    fn take<'a>(rest: &mut &'a [u8], n: usize) -> Option<&'a [u8]> {
+        let (head, tail) = rest.split_at_checked(n)?;
+        *rest = tail;
+        Some(head)
+    }
+    fn u32_le(rest: &mut &[u8]) -> Option<u32> {
+        let (bytes, tail) = rest.split_first_chunk::<4>()?;
+        *rest = tail;
+        Some(u32::from_le_bytes(*bytes))
+    }
+    fn u64_le(rest: &mut &[u8]) -> Option<u64> {
+        let (bytes, tail) = rest.split_first_chunk::<8>()?;
+        *rest = tail;
+        Some(u64::from_le_bytes(*bytes))
+    }
+    let mut rest = body;
+    let fits = (|| {
+        take(&mut rest, 16)?; // log_time, create_time
+        for _ in 0..2 {
+            // name, media_type
+            let len = u32_le(&mut rest)?;
+            take(&mut rest, usize::try_from(len).ok()?)?;
+        }
+        let data_len = u64_le(&mut rest)?;
+        take(&mut rest, usize::try_from(data_len).ok()?)?;
+        u32_le(&mut rest) // crc
+    })();
+    fits.map(|_| ()).ok_or_else(|| {
+        format!(
+            "attachment record of {} bytes is too short for its fields, data and CRC",
+            body.len()
+        )
+    })
 }
 
 /// Splits a run of `opcode, u64 length, body` records.

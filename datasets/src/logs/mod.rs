@@ -6,10 +6,11 @@
 //! - [`decode`] picks a decoder per topic: ROS messages in CDR or ROS 1 ([`msgs`] over
 //!   [`cdr`]), Foxglove schemas in protobuf or JSON ([`foxglove`]); unknown types are counted;
 //! - [`info`] summarises a log like `ros2 bag info`;
-//! - [`roles`] says which topic is the ego pose, the GPS, the objects, the camera;
-//! - [`tracks`] turns decoded messages into an ego track and object tracks in a map frame,
-//!   [`resample`] puts them on a fixed rate and GPS fixes into the map frame;
 //! - [`interaction`] reads INTERACTION track CSVs and [`convert`] writes them as MCAP.
+//!
+//! Not here yet (docs/logs.md, "Not implemented"): topic roles (which topic is the ego pose,
+//! the GPS, the objects, the camera), ego and object tracks in a map frame, resampling, and
+//! the projection of log frames into scenes.
 
 pub mod bag;
 pub mod cdr;
