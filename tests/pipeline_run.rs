@@ -116,6 +116,37 @@ fn runs_every_stage_then_skips_what_did_not_change() {
     }
     assert!(report.contains("12 images rendered"), "{report}");
     assert!(out.join("recording.rrd").is_file());
+    // One recording, every stage under its own entity path (when rerun's CLI is installed).
+    if let Some(exe) = common::rerun_cli() {
+        let rrd = out.join("recording.rrd");
+        let print = common::rerun(
+            &exe,
+            &[
+                "rrd".as_ref(),
+                "print".as_ref(),
+                "-v".as_ref(),
+                rrd.as_os_str(),
+            ],
+        );
+        let text = format!("{}{}", common::stdout(&print), stderr(&print));
+        assert!(print.status.success(), "rerun rrd print failed:\n{text}");
+        for entity in [
+            "maps/campus/world/map/lanes",
+            "maps/roundabout/world/map/roundabouts",
+            "dataset/dataset/generate/image",
+            "segmenter/",
+            "agent/",
+            "logs/episode_000/layers/obstacles",
+            "replay/replay/table",
+        ] {
+            assert!(
+                text.contains(entity),
+                "`{entity}` not in the run's recording"
+            );
+        }
+    } else {
+        println!("skipped: rerun CLI not installed");
+    }
     // The simulated log reads back exactly and projects to the simulator's own frames.
     let projection = read_json(&out.join("logs/simulated/projection.json"));
     assert!(projection["frames"].as_u64().unwrap() > 0);

@@ -6,25 +6,9 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 use common::*;
-
-fn rerun_cli() -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    std::env::split_paths(&path)
-        .map(|dir| dir.join("rerun"))
-        .find(|p| p.is_file())
-}
-
-fn rerun(exe: &Path, args: &[&std::ffi::OsStr]) -> std::process::Output {
-    Command::new(exe)
-        .args(args)
-        .stdin(std::process::Stdio::null())
-        .output()
-        .expect("the rerun executable runs")
-}
 
 #[test]
 fn recording_is_readable_by_rerun_and_shows_the_map() {

@@ -110,3 +110,20 @@ pub fn read_json(path: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
+
+/// The `rerun` executable on PATH (pip's rerun-sdk), if installed.
+pub fn rerun_cli() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|dir| dir.join("rerun"))
+        .find(|p| p.is_file())
+}
+
+/// Runs the rerun executable with `args`.
+pub fn rerun(exe: &Path, args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(exe)
+        .args(args)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("the rerun executable runs")
+}

@@ -489,6 +489,20 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let dir = AtomicDir::create(&out, MARKERS)?;
     write_json(&dir.path().join(REPLAY_JSON), &report)?;
     write_file_atomic(&dir.path().join(REPLAY_MD), md.as_bytes())?;
+    let recording = ctx.open_recording(Some(dir.path()))?;
+    if let Some(rec) = recording.stream() {
+        rec.log_static(
+            "replay/table",
+            &rerun::TextDocument::from_markdown(md.clone()),
+        )
+        .map_err(|e| {
+            CliError::new(
+                format!("rerun: cannot log the table: {e}"),
+                "use --rerun off",
+            )
+        })?;
+    }
+    recording.finish()?;
     let dest = dir.commit()?;
     drop(progress);
     ctx.ui.result(&md);

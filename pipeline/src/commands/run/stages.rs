@@ -131,6 +131,12 @@ impl StageEnv<'_> {
 
     /// Runs `pipeline <args>` in this process with the run's seed, verbosity and recording.
     fn command(&self, args: &[String]) -> Result<()> {
+        self.command_under(None, args)
+    }
+
+    /// As [`command`](Self::command), logging under `sub` within the stage's entity path
+    /// (when a stage runs the same command twice, as `maps` does).
+    fn command_under(&self, sub: Option<&str>, args: &[String]) -> Result<()> {
         let cli = self.ctx.cli;
         let mut argv: Vec<String> = vec!["pipeline".into(), "--seed".into(), cli.seed.to_string()];
         argv.push("--rerun".into());
@@ -151,11 +157,15 @@ impl StageEnv<'_> {
             )
         })?;
         let config = self.config();
+        let recording = match (self.recording, sub) {
+            (Some(stream), Some(sub)) => Some(stream.under(sub)),
+            (stream, _) => stream.cloned(),
+        };
         let child_ctx = Context {
             cli: &child,
             config: &config,
             ui: self.ctx.ui,
-            recording: self.recording,
+            recording: recording.as_ref(),
         };
         crate::dispatch(&child_ctx)
     }
@@ -207,14 +217,20 @@ impl StageEnv<'_> {
         let p = self.profile;
         match stage {
             StageName::Maps => {
-                for (input, out) in [(self.campus, CAMPUS_MAP), (self.roundabout, ROUNDABOUT_MAP)] {
-                    self.command(&args![
-                        "map",
-                        "import",
-                        input.to_string_lossy().into_owned(),
-                        "--out",
-                        self.path(out),
-                    ])?;
+                for (name, input, out) in [
+                    ("campus", self.campus, CAMPUS_MAP),
+                    ("roundabout", self.roundabout, ROUNDABOUT_MAP),
+                ] {
+                    self.command_under(
+                        Some(name),
+                        &args![
+                            "map",
+                            "import",
+                            input.to_string_lossy().into_owned(),
+                            "--out",
+                            self.path(out)
+                        ],
+                    )?;
                 }
                 Ok(())
             }
