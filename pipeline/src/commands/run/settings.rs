@@ -124,7 +124,7 @@ impl ProfileSettings {
                 eval_images: 600,
             },
             agent: AgentSettings {
-                steps: 300_000,
+                steps: 700_000,
                 warmup_steps: 5000,
                 eval_episodes: 3000,
             },
