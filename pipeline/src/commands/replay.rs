@@ -8,7 +8,8 @@
 //! the driver could see then: the rules from the distance to the nearest vehicle on the
 //! ring, the agent from the bird's-eye frames around the vehicle (its own recorded path,
 //! four frames stacked) and its scalars. Caution counts as wait, as in the Parma study.
-//! Agreement is over the go and wait frames; ambiguous frames are counted, not scored.
+//! Agreement is over the go and wait frames; ambiguous and queued frames are counted, not
+//! scored.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -25,8 +26,8 @@ use models::bc::{self, BcConfig};
 use models::dqn::{greedy_action, load_network, read_agent_description};
 use models::policy::QPolicy;
 use serde::Serialize;
-use sim::render::{BevConfig, BevRenderer};
-use sim::tasks::insertion::Action;
+use sim::render::{BevConfig, BevRenderer, FrameStack};
+use sim::tasks::insertion::{Action, observation_scalars, observation_spec};
 use sim::{Observation, ObservationSpec};
 
 use super::Context;
@@ -192,29 +193,33 @@ impl Views {
             approach.track,
             &NoiseConfig::default(),
         );
+        // Every projected frame in order through a frame stack, as the simulator stacks
+        // them; the approach's frames are a stretch of them.
         let frame_len = self.bev.frame_len();
-        let index: BTreeMap<usize, usize> = projected
+        let mut stack = FrameStack::new(frame_len, self.bev.stack);
+        let mut wanted = approach.frames.iter().peekable();
+        let mut out = Vec::with_capacity(approach.frames.len());
+        for (j, (figures, frame)) in projected
             .iter()
+            .zip(layers.chunks_exact(frame_len))
             .enumerate()
-            .map(|(j, f)| (f.log_frame, j))
-            .collect();
-        approach
-            .frames
-            .iter()
-            .map(|k| {
-                let j = index[k];
-                let mut stack = Vec::with_capacity(frame_len * self.bev.stack);
-                for back in (0..self.bev.stack).rev() {
-                    let i = j.saturating_sub(back);
-                    stack.extend_from_slice(&layers[i * frame_len..(i + 1) * frame_len]);
-                }
-                (stack, projected[j].speed_mps)
-            })
-            .collect()
+        {
+            if j == 0 {
+                stack.reset(frame);
+            } else {
+                stack.push(frame);
+            }
+            if wanted.peek() == Some(&&figures.log_frame) {
+                wanted.next();
+                let mut layers = Vec::new();
+                stack.write(&mut layers);
+                out.push((layers, figures.speed_mps));
+            }
+        }
+        out
     }
 
-    /// The task's observation: layers, then speed, target speed, aggressiveness, last action
-    /// (all zero for none).
+    /// The task's observation: the layer stack and its scalars (no last action: all zero).
     fn observation(
         &self,
         stack: Vec<u8>,
@@ -222,26 +227,20 @@ impl Views {
         aggressiveness: f64,
         last: Option<Action>,
     ) -> Observation {
-        let mut scalars = vec![0.0f32; 3 + Action::ALL.len()];
-        scalars[0] = (speed / self.speed_scale_mps) as f32;
-        scalars[1] = (self.target_speed_mps / self.speed_scale_mps) as f32;
-        scalars[2] = aggressiveness as f32;
-        if let Some(last) = last {
-            scalars[3 + last as usize] = 1.0;
-        }
         Observation {
             layers: stack,
-            scalars,
+            scalars: observation_scalars(
+                speed,
+                self.target_speed_mps,
+                self.speed_scale_mps,
+                aggressiveness,
+                last,
+            ),
         }
     }
 
     fn spec(&self) -> ObservationSpec {
-        ObservationSpec {
-            channels: self.bev.layers.len() * self.bev.stack,
-            height: self.bev.height,
-            width: self.bev.width,
-            scalars: 3 + Action::ALL.len(),
-        }
+        observation_spec(&self.bev)
     }
 }
 
@@ -383,21 +382,22 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         Some((network, summary))
     };
 
-    let rules = [25.0, 20.0, 15.0, 10.0];
-    let mut scores: Vec<Score> = rules
+    // The rules, then always go (no threshold), then the learnt policies.
+    let thresholds = [Some(25.0), Some(20.0), Some(15.0), Some(10.0), None];
+    let mut scores: Vec<Score> = thresholds
         .iter()
-        .map(|t| Score::new(format!("rule {t} m")))
-        .chain([Score::new("always go".into())])
+        .map(|t| Score::new(t.map_or("always go".into(), |t| format!("rule {t} m"))))
         .collect();
-    let first_learnt = scores.len();
-    if bc.is_some() {
+    let bc_score = bc.as_ref().map(|_| {
         scores.push(Score::new("behaviour cloning".into()));
-    }
+        scores.len() - 1
+    });
     let levels = if agent.is_some() {
         args.aggressiveness.clone()
     } else {
         Vec::new()
     };
+    let first_agent_score = scores.len();
     scores.extend(
         levels
             .iter()
@@ -422,27 +422,24 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                     .entry(format!("{l:?}").to_lowercase())
                     .or_default() += 1;
             }
-            // The rules and always-go.
-            let decisions: Vec<Vec<bool>> = approach
+            let nearest: Vec<f64> = approach
                 .frames
                 .iter()
-                .map(|&k| {
-                    let near = nearest_circulating(&map, &log.frames[k], approach.track);
-                    rules.iter().map(|t| near > *t).chain([true]).collect()
-                })
+                .map(|&k| nearest_circulating(&map, &log.frames[k], approach.track))
                 .collect();
-            for (p, score) in scores.iter_mut().enumerate().take(first_learnt) {
-                let goes: Vec<bool> = decisions.iter().map(|d| d[p]).collect();
+            for (score, threshold) in scores.iter_mut().zip(thresholds) {
+                let goes: Vec<bool> = nearest
+                    .iter()
+                    .map(|near| threshold.is_none_or(|t| *near > t))
+                    .collect();
                 score_approach(score, &log.name, approach, &log.frames, &goes);
             }
             if bc.is_none() && agent.is_none() {
                 continue;
             }
             let stacks = views.stacks(&map, &log.frames, approach);
-            let mut learnt = scores.iter_mut().skip(first_learnt);
-            let bc_score = if bc.is_some() { learnt.next() } else { None };
             // Behaviour cloning, on each frame as it is.
-            if let (Some((network, _)), Some(score)) = (&bc, bc_score) {
+            if let (Some((network, _)), Some(i)) = (&bc, bc_score) {
                 let observations: Vec<Observation> = stacks
                     .iter()
                     .map(|(stack, speed)| {
@@ -450,11 +447,11 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                     })
                     .collect();
                 let goes = bc::predict(network, &observations, &views.spec(), &device);
-                score_approach(score, &log.name, approach, &log.frames, &goes);
+                score_approach(&mut scores[i], &log.name, approach, &log.frames, &goes);
             }
             // The agent, once per aggressiveness level.
             if let Some(policy) = &agent {
-                for (level, score) in levels.iter().zip(learnt) {
+                for (level, score) in levels.iter().zip(&mut scores[first_agent_score..]) {
                     let mut last = Action::Permitted;
                     let mut goes = Vec::new();
                     for (stack, speed) in &stacks {

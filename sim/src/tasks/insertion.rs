@@ -143,6 +143,36 @@ impl Default for InsertionConfig {
 /// Number of scalar inputs: speed, target speed, aggressiveness, last action (one-hot).
 pub const SCALARS: usize = 3 + Action::ALL.len();
 
+/// The scalar inputs in their order: speed and target speed over `speed_scale_mps`, the
+/// aggressiveness, and the last action one-hot (all zero for none). Logs projected for an
+/// agent give the same inputs through this.
+pub fn observation_scalars(
+    speed_mps: f64,
+    target_speed_mps: f64,
+    speed_scale_mps: f64,
+    aggressiveness: f64,
+    last_action: Option<Action>,
+) -> Vec<f32> {
+    let mut scalars = vec![0.0f32; SCALARS];
+    scalars[0] = (speed_mps / speed_scale_mps) as f32;
+    scalars[1] = (target_speed_mps / speed_scale_mps) as f32;
+    scalars[2] = aggressiveness as f32;
+    if let Some(last) = last_action {
+        scalars[3 + last as usize] = 1.0;
+    }
+    scalars
+}
+
+/// The observation shape of the task drawn with `bev`.
+pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
+    ObservationSpec {
+        channels: bev.channels(),
+        height: bev.height,
+        width: bev.width,
+        scalars: SCALARS,
+    }
+}
+
 /// What is prepared once per map and shared by every environment on it (read-only):
 /// the routes of each usable roundabout and its static bird's-eye raster.
 #[derive(Debug)]
@@ -196,13 +226,7 @@ impl InsertionSetup {
     }
 
     pub fn observation_spec(&self) -> ObservationSpec {
-        let o = &self.config.observation;
-        ObservationSpec {
-            channels: o.channels(),
-            height: o.height,
-            width: o.width,
-            scalars: SCALARS,
-        }
+        observation_spec(&self.config.observation)
     }
 }
 
@@ -481,14 +505,16 @@ impl RoundaboutInsertion {
         if self.rendering {
             self.stack.write(&mut layers);
         }
-        let mut scalars = vec![0.0f32; SCALARS];
-        if let Some((world, ego)) = self.world_and_ego() {
-            let scale = self.config.speed_scale_mps;
-            scalars[0] = (world.vehicles()[ego].speed / scale) as f32;
-            scalars[1] = (self.target_speed(world, ego) / scale) as f32;
-        }
-        scalars[2] = self.aggressiveness as f32;
-        scalars[3 + self.last_action as usize] = 1.0;
+        let (speed, target) = self.world_and_ego().map_or((0.0, 0.0), |(world, ego)| {
+            (world.vehicles()[ego].speed, self.target_speed(world, ego))
+        });
+        let scalars = observation_scalars(
+            speed,
+            target,
+            self.config.speed_scale_mps,
+            self.aggressiveness,
+            Some(self.last_action),
+        );
         Observation { layers, scalars }
     }
 

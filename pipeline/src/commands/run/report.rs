@@ -16,6 +16,7 @@ use super::stages::{
     SEGMENTER_EVAL, SEGMENTER_MODEL, SIMULATED_LOG, StageName,
 };
 use super::{MANIFEST_FILE, StageOutcome};
+use crate::commands::replay::REPLAY_MD;
 use crate::output::write_file_atomic;
 use crate::recording::RECORDING_FILE;
 
@@ -33,10 +34,22 @@ fn number(v: &Option<Value>, pointer: &str, decimals: usize) -> String {
         .map_or("n/a".into(), |x| format!("{x:.decimals$}"))
 }
 
-fn lines_of(path: &Path) -> Option<usize> {
+/// Items in a dataset folder's manifest (0 when it cannot be read).
+fn items_in(dataset: &Path) -> usize {
+    datasets::manifest::read_manifest(&dataset.join(datasets::manifest::MANIFEST_FILE))
+        .map_or(0, |items| items.len())
+}
+
+/// A markdown page another command wrote, without its `# ` title.
+fn page_without_title(path: &Path) -> String {
     std::fs::read_to_string(path)
-        .ok()
-        .map(|t| t.lines().filter(|l| !l.trim().is_empty()).count())
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| !l.starts_with("# "))
+        .collect::<Vec<_>>()
+        .join("\n")
+        .trim_end()
+        .to_owned()
 }
 
 pub fn write(
@@ -105,7 +118,7 @@ pub fn write(
         let split = json(&run_dir.join(GENERATED).join("split.json"));
         let mut sentence = format!(
             "{} images rendered on the campus (`{GENERATED}`), split {} train / {} val",
-            lines_of(&run_dir.join(GENERATED).join("manifest.jsonl")).unwrap_or(0),
+            items_in(&run_dir.join(GENERATED)),
             number(&split, "/counts/train", 0),
             number(&split, "/counts/val", 0),
         );
@@ -113,7 +126,7 @@ pub fn write(
             let _ = write!(
                 sentence,
                 "; {} items after augmentation (`{AUGMENTED}`, thesis preset, originals included)",
-                lines_of(&run_dir.join(AUGMENTED).join("manifest.jsonl")).unwrap_or(0)
+                items_in(&run_dir.join(AUGMENTED))
             );
         }
         let _ = writeln!(md, "\n## Segmentation data\n\n{sentence}.");
@@ -137,20 +150,14 @@ pub fn write(
     }
     if finished(StageName::Agent) {
         let summary = json(&run_dir.join(AGENT_MODEL).join("summary.json"));
-        let table =
-            std::fs::read_to_string(run_dir.join(AGENT_EVAL).join("eval.md")).unwrap_or_default();
-        // The evaluation's own page starts with its title; keep its table.
-        let table: String = table
-            .lines()
-            .filter(|l| !l.starts_with("# "))
-            .collect::<Vec<_>>()
-            .join("\n");
+        // The evaluation's own page, without its title.
+        let table = page_without_title(&run_dir.join(AGENT_EVAL).join("eval.md"));
         let _ = writeln!(
             md,
             "\n## Roundabout-insertion agent\n\nTrained for {} transitions in {} s (`{AGENT_MODEL}`); evaluation (`{AGENT_EVAL}`):\n{}",
             number(&summary, "/steps", 0),
             number(&summary, "/wall_seconds", 0),
-            table.trim_end()
+            table
         );
     }
     if finished(StageName::Logs) {
@@ -183,15 +190,13 @@ pub fn write(
         );
     }
     if finished(StageName::Replay) {
-        let page =
-            std::fs::read_to_string(run_dir.join(REPLAY).join("replay.md")).unwrap_or_default();
-        let body: Vec<&str> = page.lines().filter(|l| !l.starts_with("# ")).collect();
+        let body = page_without_title(&run_dir.join(REPLAY).join(REPLAY_MD));
         let _ = writeln!(
             md,
             "\n## Replay\n\nThe agent and the baselines against the simulated drivers' go / wait decisions in the logs above \
              (`{REPLAY}`; the same command judges them against real drivers: `pipeline replay eval --log <INTERACTION \
              track file converted with logs convert> --map <its Lanelet2 map> --agent {AGENT_MODEL}`):\n{}",
-            body.join("\n").trim_end()
+            body
         );
     }
     let path = run_dir.join(REPORT_FILE);

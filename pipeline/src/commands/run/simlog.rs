@@ -14,9 +14,10 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{Context as _, Result};
-use datasets::logs::convert::{ConvertConfig, OBJECTS_TOPIC, interaction_to_mcap};
-use datasets::logs::decode::{Decoded, read_decoded};
-use datasets::logs::scenes::{SceneFrame, actors_from_detections, tracks_from_scene_frames};
+use datasets::logs::convert::{ConvertConfig, interaction_to_mcap};
+use datasets::logs::decode::read_decoded;
+use datasets::logs::project::log_frames;
+use datasets::logs::scenes::{SceneFrame, tracks_from_scene_frames};
 use datasets::logs::source::{Log, ReadOptions};
 use maps::geometry::Point;
 use serde::Serialize;
@@ -74,7 +75,7 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", ROUNDABOUT_MAP))?;
     let bev = setup.config().observation.clone();
     let layer_names: Vec<&str> = bev.layers.iter().map(|l| l.name()).collect();
-    let frame_len = bev.width * bev.height;
+    let plane = bev.width * bev.height;
     let step_s = setup.config().traffic.step_s;
 
     let dir = AtomicDir::create(out, MARKERS)?;
@@ -151,24 +152,18 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
         let log = Log::open(&path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         let decoded = read_decoded(&log, &ReadOptions::default())
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        let arrays: Vec<_> = decoded
-            .topic_messages(OBJECTS_TOPIC)
-            .filter_map(|m| match &m.message {
-                Decoded::Detection3DArray(a) => Some(a),
-                _ => None,
-            })
-            .collect();
-        if arrays.len() != recorded.len() {
+        let read_back = log_frames(&decoded, None);
+        if read_back.len() != recorded.len() {
             anyhow::bail!(
                 "{}: {} object frames read back, {} written",
                 path.display(),
-                arrays.len(),
+                read_back.len(),
                 recorded.len()
             );
         }
         let mut drawn = Vec::new();
-        for (step, (original, array)) in recorded.iter().zip(arrays).enumerate() {
-            let actors = actors_from_detections(array);
+        for (step, (original, logged)) in recorded.iter().zip(read_back).enumerate() {
+            let actors = logged.actors;
             for (a, b) in original.frame.actors.iter().zip(&actors) {
                 report.max_position_error_m = report
                     .max_position_error_m
@@ -184,7 +179,7 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
             };
             sim.renderer().render(&scene, &mut drawn);
             for (layer, equal) in equal_pixels.iter_mut().enumerate() {
-                let range = layer * frame_len..(layer + 1) * frame_len;
+                let range = layer * plane..(layer + 1) * plane;
                 *equal += drawn[range.clone()]
                     .iter()
                     .zip(&original.bev[range])
@@ -206,7 +201,7 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
         });
         k += 1;
     }
-    let pixels = (report.frames * frame_len).max(1) as f64;
+    let pixels = (report.frames * plane).max(1) as f64;
     for (name, equal) in layer_names.iter().zip(&equal_pixels) {
         report
             .layer_agreement
