@@ -50,3 +50,11 @@ impl Policy for QPolicy {
         actions.extend(q.chunks(self.actions.max(1)).map(greedy_action));
     }
 }
+
+impl<E> sim::tasks::TaskPolicy<E> for QPolicy {
+    fn act(&mut self, _: &[&E], observations: &[&Observation], actions: &mut Vec<usize>) {
+        let q = self.q_values(observations);
+        actions.clear();
+        actions.extend(q.chunks(self.actions.max(1)).map(greedy_action));
+    }
+}

@@ -167,17 +167,25 @@ impl QNetworkConfig {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut in_channels = spec.channels;
         let mut convolutions = Vec::with_capacity(self.convolutions.len());
-        for conv in &self.convolutions {
+        // Without layers (a task of scalar inputs only) there is nothing to convolve.
+        let conv_specs: &[ConvSpec] = if spec.layer_len() == 0 {
+            &[]
+        } else {
+            &self.convolutions
+        };
+        for conv in conv_specs {
             convolutions.push(seeded_conv(in_channels, conv, &mut rng, device));
             in_channels = conv.channels;
         }
         let pool = match self.pooling {
-            Pooling::Average { height, width } if !self.convolutions.is_empty() => {
+            Pooling::Average { height, width } if !conv_specs.is_empty() => {
                 Some(AdaptiveAvgPool2dConfig::new([height, width]).init())
             }
             _ => None,
         };
-        let conv_features = if self.convolutions.is_empty() {
+        let conv_features = if spec.layer_len() == 0 {
+            0
+        } else if self.convolutions.is_empty() {
             spec.layer_len()
         } else {
             self.conv_features(spec)?
@@ -237,8 +245,12 @@ impl QNetwork {
     /// - `scalars`: `[batch, scalars]`;
     /// - returns `[batch, actions]`.
     pub fn forward(&self, layers: Tensor<4>, scalars: Tensor<2>) -> Tensor<2> {
-        let visual = if self.convolutions.is_empty() {
-            layers.flatten::<2>(1, 3)
+        let [_, channels, height, width] = layers.dims();
+        let visual = if channels * height * width == 0 {
+            // A task with scalar inputs only: nothing to see.
+            None
+        } else if self.convolutions.is_empty() {
+            Some(layers.flatten::<2>(1, 3))
         } else {
             let mut x = layers;
             for conv in &self.convolutions {
@@ -247,13 +259,16 @@ impl QNetwork {
             if let Some(pool) = &self.pool {
                 x = pool.forward(x);
             }
-            x.flatten::<2>(1, 3)
+            Some(x.flatten::<2>(1, 3))
         };
         let scalar = match &self.scalar_layer {
             Some(layer) => relu(layer.forward(scalars)),
             None => scalars,
         };
-        let mut x = Tensor::cat(vec![visual, scalar], 1);
+        let mut x = match visual {
+            Some(visual) => Tensor::cat(vec![visual, scalar], 1),
+            None => scalar,
+        };
         for layer in &self.hidden {
             x = relu(layer.forward(x));
         }
@@ -410,6 +425,32 @@ mod tests {
             assert_eq!(q.len(), 6);
             assert!(q.iter().all(|v| v.is_finite()));
         }
+        Ok(())
+    }
+
+    #[test]
+    fn a_network_over_scalars_only() -> Result<(), String> {
+        // Tasks such as obstacle avoidance have no layers: the convolutions are skipped.
+        let device = Device::flex();
+        let s = ObservationSpec {
+            channels: 0,
+            height: 0,
+            width: 0,
+            scalars: 6,
+        };
+        let net = QNetworkConfig::default().init(&s, 4, 1, &device)?;
+        assert_eq!(
+            net.num_params(),
+            (6 * 64 + 64) + (64 * 256 + 256) + (256 * 4 + 4)
+        );
+        let observation = Observation {
+            layers: Vec::new(),
+            scalars: vec![0.5; 6],
+        };
+        let (layers, scalars) = observations_to_tensors(&[&observation, &observation], &s, &device);
+        let q = tensor_values(net.forward(layers, scalars));
+        assert_eq!(q.len(), 8);
+        assert_eq!(q[..4], q[4..], "the same input gives the same Q-values");
         Ok(())
     }
 

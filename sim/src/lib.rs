@@ -16,6 +16,7 @@ pub mod baselines;
 pub mod env;
 pub mod error;
 pub mod eval;
+pub mod kinematics;
 pub mod path;
 pub mod render;
 pub mod roundabout;

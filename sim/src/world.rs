@@ -25,7 +25,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::path::{PieceKey, wrap_angle};
+use crate::kinematics::{Bicycle, advance_speed};
+use crate::path::PieceKey;
 use crate::roundabout::{RingRoute, RoundaboutLayout};
 use crate::scene::{Actor, ActorKind, OrientedBox};
 use crate::spatial::UniformGrid;
@@ -260,11 +261,14 @@ impl Default for EgoConfig {
     }
 }
 
-/// The ego's own state: the rear axle's position and the heading (kinematic bicycle).
+/// What the caller decides for the ego in one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Bicycle {
-    rear: Point,
-    heading: f64,
+pub struct EgoCommand {
+    /// m/s², clamped to the ego's limits.
+    pub accel: f64,
+    /// Front-wheel angle (left positive), clamped to `±max_steer_rad`; `None` lets the
+    /// pure pursuit controller follow the ego's route.
+    pub steer_rad: Option<f64>,
 }
 
 /// One vehicle of the world.
@@ -503,12 +507,10 @@ impl World {
             let near = same_approach && (v.s - s).abs() < clear_m + (v.length + cfg.length_m) / 2.0;
             !(near || v.footprint().overlaps(&ego_box))
         });
-        let rear =
-            position.sub(Point::new(heading.cos(), heading.sin()).scale(cfg.wheelbase_m / 2.0));
         let driver = Driver::new(&self.config.drivers, 0.5);
         let vehicle = self.new_vehicle(route, s, speed, (cfg.length_m, cfg.width_m), driver);
         self.vehicles.push(Vehicle {
-            bicycle: Some(Bicycle { rear, heading }),
+            bicycle: Some(Bicycle::at_centre(position, heading, cfg.wheelbase_m)),
             ..vehicle
         });
         self.refresh_lookahead();
@@ -518,6 +520,15 @@ impl World {
     /// limits), everyone else by their driver model; then vehicles past their exit leave
     /// and new ones may arrive.
     pub fn step(&mut self, ego_accel: f64) {
+        self.step_ego(EgoCommand {
+            accel: ego_accel,
+            steer_rad: None,
+        });
+    }
+
+    /// Like [`World::step`], with the ego's steering optionally chosen by the caller
+    /// instead of the pure pursuit controller.
+    pub fn step_ego(&mut self, ego: EgoCommand) {
         let dt = self.config.step_s;
         self.decide_gaps();
         let accels: Vec<f64> = (0..self.vehicles.len())
@@ -532,19 +543,11 @@ impl World {
         let brake = self.config.drivers.max_brake_mps2;
         for (i, a) in accels.into_iter().enumerate() {
             if self.vehicles[i].is_ego() {
-                self.move_ego(i, ego_accel, dt);
+                self.move_ego(i, ego, dt);
             } else {
                 let v = &mut self.vehicles[i];
                 let a = a.clamp(-brake, v.driver.max_accel_mps2);
-                let new_speed = (v.speed + a * dt).max(0.0);
-                // Exact distance under constant acceleration, stopping at zero speed.
-                let ds = if new_speed > 0.0 {
-                    (v.speed + new_speed) / 2.0 * dt
-                } else if a < 0.0 {
-                    v.speed * v.speed / (-2.0 * a)
-                } else {
-                    0.0
-                };
+                let (new_speed, ds) = advance_speed(v.speed, a, dt);
                 v.s += ds;
                 v.speed = new_speed;
                 v.accel = a;
@@ -566,36 +569,26 @@ impl World {
         self.refresh_lookahead();
     }
 
-    /// Moves the ego one step: pure pursuit steering on its route, the given acceleration.
-    fn move_ego(&mut self, i: usize, accel: f64, dt: f64) {
+    /// Moves the ego one step: the commanded steering, or pure pursuit on its route; the
+    /// commanded acceleration.
+    fn move_ego(&mut self, i: usize, command: EgoCommand, dt: f64) {
         let cfg = self.ego_config;
         let layout = Arc::clone(&self.layout);
         let v = &mut self.vehicles[i];
         let Some(mut bike) = v.bicycle else { return };
         let path = &layout.routes[v.route].path;
-        let a = accel.clamp(-cfg.max_brake_mps2, cfg.max_accel_mps2);
-        let new_speed = (v.speed + a * dt).max(0.0);
-        let travelled = if new_speed > 0.0 {
-            (v.speed + new_speed) / 2.0 * dt
-        } else if a < 0.0 {
-            v.speed * v.speed / (-2.0 * a)
-        } else {
-            0.0
+        let a = command.accel.clamp(-cfg.max_brake_mps2, cfg.max_accel_mps2);
+        let (new_speed, travelled) = advance_speed(v.speed, a, dt);
+        let steer = match command.steer_rad {
+            Some(steer) => steer.clamp(-cfg.max_steer_rad, cfg.max_steer_rad),
+            None => {
+                let lookahead = (cfg.lookahead_min_m + cfg.lookahead_s * v.speed).min(8.0);
+                let (target, _) = path.pose_at(v.s + lookahead);
+                bike.pure_pursuit(target, cfg.max_steer_rad)
+            }
         };
-        let lookahead = (cfg.lookahead_min_m + cfg.lookahead_s * v.speed).min(8.0);
-        let (target, _) = path.pose_at(v.s + lookahead);
-        let to_target = target.sub(bike.rear);
-        let alpha = wrap_angle(to_target.y.atan2(to_target.x) - bike.heading);
-        let distance = to_target.norm().max(0.1);
-        let steer = (2.0 * cfg.wheelbase_m * alpha.sin() / distance)
-            .atan()
-            .clamp(-cfg.max_steer_rad, cfg.max_steer_rad);
-        bike.rear = bike
-            .rear
-            .add(Point::new(bike.heading.cos(), bike.heading.sin()).scale(travelled));
-        bike.heading = wrap_angle(bike.heading + travelled / cfg.wheelbase_m * steer.tan());
-        let axis = Point::new(bike.heading.cos(), bike.heading.sin());
-        v.position = bike.rear.add(axis.scale(cfg.wheelbase_m / 2.0));
+        bike.advance(travelled, steer);
+        v.position = bike.centre();
         v.heading = bike.heading;
         v.bicycle = Some(bike);
         v.speed = new_speed;

@@ -1,0 +1,105 @@
+//! Vehicle motion shared by the traffic world and the tasks: constant-acceleration
+//! longitudinal steps and the kinematic bicycle.
+
+use maps::Point;
+
+use crate::path::wrap_angle;
+
+/// One step of constant acceleration `accel` from `speed` over `dt`, never reversing:
+/// `(new speed, distance travelled)`. When the speed would cross zero the vehicle stops
+/// exactly where it reaches zero.
+pub fn advance_speed(speed: f64, accel: f64, dt: f64) -> (f64, f64) {
+    let new_speed = (speed + accel * dt).max(0.0);
+    let travelled = if new_speed > 0.0 {
+        (speed + new_speed) / 2.0 * dt
+    } else if accel < 0.0 {
+        speed * speed / (-2.0 * accel)
+    } else {
+        0.0
+    };
+    (new_speed, travelled)
+}
+
+/// A kinematic bicycle: the rear axle's position and the heading. The reference point
+/// of a vehicle (its centre) lies half a wheelbase ahead of the rear axle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bicycle {
+    pub rear: Point,
+    /// rad, counter-clockwise from +x.
+    pub heading: f64,
+    pub wheelbase_m: f64,
+}
+
+impl Bicycle {
+    /// The bicycle whose centre is at `centre`.
+    pub fn at_centre(centre: Point, heading: f64, wheelbase_m: f64) -> Self {
+        Bicycle {
+            rear: centre.sub(direction(heading).scale(wheelbase_m / 2.0)),
+            heading,
+            wheelbase_m,
+        }
+    }
+
+    /// The centre (half a wheelbase ahead of the rear axle).
+    pub fn centre(&self) -> Point {
+        self.rear
+            .add(direction(self.heading).scale(self.wheelbase_m / 2.0))
+    }
+
+    /// Moves `travelled` metres with the front wheels at `steer_rad` (left positive).
+    pub fn advance(&mut self, travelled: f64, steer_rad: f64) {
+        self.rear = self.rear.add(direction(self.heading).scale(travelled));
+        self.heading = wrap_angle(self.heading + travelled / self.wheelbase_m * steer_rad.tan());
+    }
+
+    /// The pure pursuit steering angle towards `target`, within `±max_steer_rad`.
+    pub fn pure_pursuit(&self, target: Point, max_steer_rad: f64) -> f64 {
+        let to_target = target.sub(self.rear);
+        let alpha = wrap_angle(to_target.y.atan2(to_target.x) - self.heading);
+        let distance = to_target.norm().max(0.1);
+        (2.0 * self.wheelbase_m * alpha.sin() / distance)
+            .atan()
+            .clamp(-max_steer_rad, max_steer_rad)
+    }
+}
+
+/// The unit vector of a heading.
+pub fn direction(heading: f64) -> Point {
+    Point::new(heading.cos(), heading.sin())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn braking_stops_exactly_at_zero_speed() {
+        let (v, d) = advance_speed(2.0, -8.0, 0.5);
+        assert_eq!(v, 0.0);
+        assert!((d - 0.25).abs() < 1e-12, "{d}");
+        let (v, d) = advance_speed(10.0, 2.0, 0.5);
+        assert!((v - 11.0).abs() < 1e-12 && (d - 5.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn constant_steering_drives_a_circle_of_the_bicycle_radius() {
+        // Radius of the rear axle's circle: wheelbase / tan(steer).
+        let steer = 0.3_f64;
+        let mut bike = Bicycle::at_centre(Point::new(0.0, 0.0), 0.0, 2.7);
+        let radius = 2.7 / steer.tan();
+        let start = bike.rear;
+        let centre = start.add(Point::new(0.0, radius));
+        for _ in 0..2000 {
+            bike.advance(0.01, steer);
+            assert!((bike.rear.distance(centre) - radius).abs() < 0.05);
+        }
+    }
+
+    #[test]
+    fn pure_pursuit_steers_towards_the_side_of_the_target() {
+        let bike = Bicycle::at_centre(Point::new(0.0, 0.0), 0.0, 2.7);
+        assert!(bike.pure_pursuit(Point::new(5.0, 2.0), 0.6) > 0.0);
+        assert!(bike.pure_pursuit(Point::new(5.0, -2.0), 0.6) < 0.0);
+        assert_eq!(bike.pure_pursuit(Point::new(0.0, 5.0), 0.6), 0.6);
+    }
+}
