@@ -10,7 +10,10 @@ pub mod insertion;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::env::{Env, Observation};
+use maps::Point;
+
+use crate::env::{Env, Observation, Outcome};
+use crate::scene::Scene;
 
 pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
@@ -18,12 +21,49 @@ pub use insertion::{
 };
 
 /// A task whose finished episodes can be summarised for evaluation tables.
-pub trait Task: Env {
+pub trait Task: Env + Sized {
     /// The figures of one episode (outcome, return, the task's metrics).
-    type Summary: Clone + Send + Serialize;
+    type Summary: TaskSummary;
 
     /// The figures of the current (normally just finished) episode.
     fn summary(&self) -> Self::Summary;
+
+    /// The baselines every agent of the task is reported next to: one per constant action,
+    /// then the task's rules, by name.
+    fn baselines() -> Vec<(String, PolicyFactory<Self>)>;
+
+    /// The current scene, for pictures and the rerun recording (None before a reset).
+    fn scene(&self) -> Option<Scene<'_>>;
+
+    /// The ego's path so far in this episode.
+    fn trajectory(&self) -> &[Point];
+}
+
+/// What an evaluation table reads from an episode's summary.
+pub trait TaskSummary: Clone + Send + Serialize {
+    fn outcome(&self) -> Outcome;
+    fn episode_return(&self) -> f64;
+    /// The task's own metrics, by name with their unit (e.g. `("mean angle deviation °", 12.0)`),
+    /// in the same order for every episode. A metric an episode cannot give (e.g. a
+    /// stopping distance when the ego never stopped) is NaN and left out of its mean.
+    fn metrics(&self) -> Vec<(&'static str, f64)>;
+}
+
+/// Makes one policy instance per chunk of episodes (policies are `Send`, not `Sync`).
+pub type PolicyFactory<E> = Box<dyn Fn() -> Box<dyn TaskPolicy<E>> + Send + Sync>;
+
+/// The [`PolicyFactory`] of each constant action of `E`.
+pub fn constant_baselines<E: Task + 'static>(
+    action_names: &[&str],
+) -> Vec<(String, PolicyFactory<E>)> {
+    action_names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let make: PolicyFactory<E> = Box::new(move || Box::new(ConstantAction(i)));
+            (format!("always {}", name.replace('_', " ")), make)
+        })
+        .collect()
 }
 
 /// A decision rule for a batch of episodes of task `E`, stepped side by side so a network
@@ -32,6 +72,12 @@ pub trait Task: Env {
 pub trait TaskPolicy<E>: Send {
     /// One action per environment, in order, into `actions` (cleared first).
     fn act(&mut self, envs: &[&E], observations: &[&Observation], actions: &mut Vec<usize>);
+}
+
+impl<E> TaskPolicy<E> for Box<dyn TaskPolicy<E>> {
+    fn act(&mut self, envs: &[&E], observations: &[&Observation], actions: &mut Vec<usize>) {
+        (**self).act(envs, observations, actions);
+    }
 }
 
 /// The same action at every step: the constant-action baselines.
@@ -88,4 +134,95 @@ where
             envs.iter().map(Task::summary).collect::<Vec<_>>()
         })
         .collect()
+}
+
+/// Outcome fractions and metric means of one policy's episodes.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TaskResult {
+    pub episodes: usize,
+    pub reaches: f64,
+    pub crashes: f64,
+    pub off_roads: f64,
+    pub time_overs: f64,
+    pub mean_return: f64,
+    /// Means over the episodes that give the metric (NaN ones left out), by name.
+    pub metrics: Vec<(String, Option<f64>)>,
+}
+
+impl TaskResult {
+    pub fn of<S: TaskSummary>(episodes: &[S]) -> TaskResult {
+        let n = episodes.len();
+        let frac = |o: Outcome| {
+            episodes.iter().filter(|e| e.outcome() == o).count() as f64 / n.max(1) as f64
+        };
+        let per_episode: Vec<Vec<(&'static str, f64)>> =
+            episodes.iter().map(TaskSummary::metrics).collect();
+        let names: Vec<&'static str> = per_episode
+            .first()
+            .map(|m| m.iter().map(|(name, _)| *name).collect())
+            .unwrap_or_default();
+        let metrics = names
+            .iter()
+            .enumerate()
+            .map(|(k, name)| {
+                let values: Vec<f64> = per_episode
+                    .iter()
+                    .filter_map(|m| m.get(k).map(|(_, v)| *v))
+                    .filter(|v| !v.is_nan())
+                    .collect();
+                let mean =
+                    (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
+                ((*name).to_owned(), mean)
+            })
+            .collect();
+        TaskResult {
+            episodes: n,
+            reaches: frac(Outcome::Reached),
+            crashes: frac(Outcome::Crashed),
+            off_roads: frac(Outcome::OffRoad),
+            time_overs: frac(Outcome::TimeOver),
+            mean_return: episodes
+                .iter()
+                .map(TaskSummary::episode_return)
+                .sum::<f64>()
+                / n.max(1) as f64,
+            metrics,
+        }
+    }
+}
+
+/// A markdown table of policies' results: outcome fractions, then the task's metrics.
+pub fn task_table(rows: &[(String, TaskResult)]) -> String {
+    let metric_names: Vec<&str> = rows
+        .first()
+        .map(|(_, r)| r.metrics.iter().map(|(n, _)| n.as_str()).collect())
+        .unwrap_or_default();
+    let mut out = String::from(
+        "| policy | episodes | reached | crashed | off road | time over | mean return |",
+    );
+    for name in &metric_names {
+        out.push_str(&format!(" {name} |"));
+    }
+    out.push_str("\n|");
+    out.push_str(&" --- |".repeat(6 + metric_names.len()));
+    out.push('\n');
+    for (policy, r) in rows {
+        out.push_str(&format!(
+            "| {policy} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} |",
+            r.episodes,
+            100.0 * r.reaches,
+            100.0 * r.crashes,
+            100.0 * r.off_roads,
+            100.0 * r.time_overs,
+            r.mean_return,
+        ));
+        for (_, value) in &r.metrics {
+            match value {
+                Some(v) => out.push_str(&format!(" {v:.2} |")),
+                None => out.push_str(" - |"),
+            }
+        }
+        out.push('\n');
+    }
+    out
 }
