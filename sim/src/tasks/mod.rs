@@ -6,6 +6,7 @@
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
 
 pub mod insertion;
+pub mod route;
 
 use rayon::prelude::*;
 use serde::Serialize;

@@ -50,6 +50,9 @@ pub enum AgentCommand {
 pub enum Task {
     /// Enter a roundabout from a yield line through circulating traffic (the Parma study).
     RoundaboutInsertion,
+    /// Follow a planned route over an imported campus, keeping in lane among other traffic
+    /// (the AIT / MTSU studies).
+    RouteFollowing,
 }
 
 impl Task {
@@ -150,7 +153,10 @@ pub struct EvalArgs {
 #[serde(default, deny_unknown_fields)]
 pub struct AgentConfig {
     pub dqn: models::dqn::DqnConfig,
+    /// Roundabout insertion.
     pub task: InsertionConfig,
+    /// Route following.
+    pub route: sim::tasks::route::RouteConfig,
 }
 
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same

@@ -18,6 +18,7 @@ use maps::Map;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use sim::Env;
+use sim::tasks::route::{RouteConfig, RouteFollowing, RouteSetup, RouteSplit};
 use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
 use sim::world::TrafficLevel;
 
@@ -136,5 +137,72 @@ impl TaskKind for Insertion {
             aggressiveness: 0.5,
         };
         episodes::record(rec, setup, policy, condition, count, seed)
+    }
+}
+
+/// Campus route following (the AIT / MTSU studies).
+#[derive(Debug)]
+pub struct Route;
+
+impl TaskKind for Route {
+    type Env = RouteFollowing;
+    type Config = RouteConfig;
+    type Setup = RouteSetup;
+
+    fn config(agent: &AgentConfig) -> RouteConfig {
+        agent.route.clone()
+    }
+
+    fn setup(map: Option<&Path>, config: &RouteConfig) -> Result<Arc<RouteSetup>> {
+        let loaded = required_map(map, "route-following")?;
+        let path = map.unwrap_or(Path::new(""));
+        RouteSetup::new(Arc::new(loaded), config.clone()).map_err(|e| {
+            CliError::file(
+                path,
+                format!("cannot set up route following: {e}"),
+                "the map needs connected car lanes with routes of [agent.route] route_length_m",
+            )
+            .into()
+        })
+    }
+
+    fn map(setup: &RouteSetup) -> Option<&Map> {
+        Some(setup.map())
+    }
+
+    fn train_env(setup: &Arc<RouteSetup>, _: TrafficLevel) -> RouteFollowing {
+        let mut env = RouteFollowing::new(Arc::clone(setup));
+        env.set_split(RouteSplit::Training);
+        env
+    }
+
+    fn record_episodes(
+        rec: &Stream,
+        setup: &Arc<RouteSetup>,
+        policy: &QPolicy,
+        _: TrafficLevel,
+        count: usize,
+        seed: u64,
+    ) -> Result<()> {
+        episodes::record_task(rec, || Self::eval_env(setup, HELD_OUT), policy, count, seed)
+    }
+}
+
+const HELD_OUT: &str = "held-out routes";
+const TRAINING_ROUTES: &str = "training routes";
+
+impl GenericTask for Route {
+    fn conditions(_: &[TrafficLevel]) -> Vec<String> {
+        vec![HELD_OUT.to_owned(), TRAINING_ROUTES.to_owned()]
+    }
+
+    fn eval_env(setup: &Arc<RouteSetup>, condition: &str) -> RouteFollowing {
+        let mut env = RouteFollowing::new(Arc::clone(setup));
+        env.set_split(if condition == TRAINING_ROUTES {
+            RouteSplit::Training
+        } else {
+            RouteSplit::HeldOut
+        });
+        env
     }
 }
