@@ -246,8 +246,44 @@ fn replay_shards_add_up_to_the_unsharded_report() {
     );
     assert_same_files(&whole, &merged);
 
-    // Not a shard folder: one error naming the file, nothing written.
+    // With behaviour cloning (trained in each shard, the same network whatever the thread
+    // count): the same report too. FT 000 both teaches and is evaluated: a check of the
+    // sums, not a figure.
+    let bc = ["--train-log", log.to_str().unwrap(), "--bc-stride", "8"];
+    let whole_bc = tmp.path().join("whole_bc");
+    assert_success(&eval("2", &bc, &whole_bc), "unsharded replay eval with BC");
+    let mut bc_shards = Vec::new();
+    for shard in ["1/2", "0/2"] {
+        let dir = tmp.path().join(format!("bc_shard{}", &shard[..1]));
+        let mut args = bc.to_vec();
+        args.extend(["--shard", shard]);
+        assert_success(&eval("1", &args, &dir), shard);
+        bc_shards.push(dir);
+    }
+    let merged_bc = tmp.path().join("merged_bc");
+    assert_success(
+        &merge(&["replay", "merge", "--shards"], &bc_shards, &merged_bc),
+        "replay merge --shards with BC",
+    );
+    assert_same_files(&whole_bc, &merged_bc);
+    assert!(
+        std::fs::read_to_string(merged_bc.join("replay.md"))
+            .unwrap()
+            .contains("| behaviour cloning |")
+    );
+    // Shards of two runs (with and without behaviour cloning): refused, naming the file.
+    let plain = tmp.path().join("plain_shard1");
+    assert_success(&eval("1", &["--shard", "1/2"], &plain), "1/2 without BC");
     let bad = tmp.path().join("bad");
+    let out = merge(
+        &["replay", "merge", "--shards"],
+        &[bc_shards[1].clone(), plain],
+        &bad,
+    );
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("other settings"), "{}", stderr(&out));
+
+    // Not a shard folder: one error naming the file, nothing written.
     let out = merge(
         &["replay", "merge", "--shards"],
         std::slice::from_ref(&whole),

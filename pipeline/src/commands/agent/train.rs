@@ -129,7 +129,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         seed,
         envs,
         resume.map(|(c, _)| c),
-        &models::cpu_device(),
+        &ctx.device()?,
         &mut observer,
     );
     if let Some(e) = observer.error.take() {
