@@ -520,8 +520,9 @@ pub fn augment_dataset(
         .collect();
     let (made, skipped) = apply_policy(results, opts.on_error)?;
     let items: Vec<Item> = made.into_iter().flatten().collect();
-    // A shard may make nothing (fewer items than shards); the merged run is checked as a
-    // whole when its shards are made by one run.
+    // A shard may make nothing (fewer items than shards, or every item of its share
+    // skipped). The whole run's "nothing could be augmented" error is not repeated when
+    // the shards are merged.
     if items.is_empty() && opts.shard.is_none() {
         return Err(DatasetError::invalid(
             &dataset.root,

@@ -161,8 +161,13 @@ pub fn run(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
     write_frames_card(dir.path(), &card)?;
     for (name, bytes) in [(FRAMES_JSONL, &lines), (LAYERS_BIN, &layers)] {
         let path = dir.path().join(name);
-        std::fs::write(&path, bytes)
-            .map_err(|e| bad(&out.join(name), format!("cannot write: {e}")))?;
+        std::fs::write(&path, bytes).map_err(|e| {
+            CliError::file(
+                &out.join(name),
+                format!("cannot write: {e}"),
+                "check free disk space and permissions",
+            )
+        })?;
     }
     write_previews(dir.path(), &layers, previews, &bev)?;
     let dest = dir.commit()?;

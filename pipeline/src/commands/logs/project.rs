@@ -279,15 +279,15 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
     write(FRAMES_JSONL, lines.as_bytes())?;
     write(LAYERS_BIN, &layers)?;
     let frame_len = config.frame_len();
-    if args.shard.is_some() {
-        // The merged folder gets the previews and (in the merge's recording) nothing else.
+    if let Some(shard) = args.shard {
+        // The merge draws the previews; shards write no recording.
         let dest = dir.commit()?;
         drop(progress);
         ctx.ui.result(&format!(
             "{} frames around track {ego} in {seconds:.2} s (shard {}/{}); wrote {}",
             figures.len(),
-            args.shard.map_or(0, |s| s.index),
-            args.shard.map_or(1, |s| s.count),
+            shard.index,
+            shard.count,
             dest.display()
         ));
         return Ok(());
