@@ -148,7 +148,7 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         seed,
         envs,
         resume.map(|(c, _, _)| c),
-        &models::cpu_device(),
+        &ctx.device()?,
         &mut observer,
     );
     if let Some(e) = observer.error.take() {
