@@ -1,11 +1,15 @@
 //! Driving tasks: actions, reward, termination, metrics and baselines on the traffic world.
 //!
-//! Every task is an [`Env`]. Roundabout insertion has its own evaluation harness
+//! Every task is an [`Env`]: roundabout insertion ([`insertion`]) and roundabout driving
+//! ([`ring_driving`]), sharing the prepared roundabouts and the ego's view
+//! ([`roundabouts`]). Roundabout insertion has its own evaluation harness
 //! ([`crate::eval`], conditions of traffic × aggressiveness); the other tasks implement
 //! [`Task`] and are evaluated by [`run_episodes`] with any [`TaskPolicy`]: a learned
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
 
 pub mod insertion;
+pub mod ring_driving;
+pub mod roundabouts;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -19,6 +23,11 @@ pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
     RoundaboutInsertion,
 };
+pub use ring_driving::{
+    PursuitRule, RingDriving, RingDrivingConfig, RingDrivingSetup, RingDrivingSummary,
+    RingRewardConfig, SteerAction,
+};
+pub use roundabouts::{EgoView, RoundaboutSet, ego_scene};
 
 /// A task whose finished episodes can be summarised for evaluation tables.
 pub trait Task: Env + Sized {
