@@ -303,7 +303,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         Some(dir) => {
             progress.step(&format!("loading the agent {}", dir.display()));
             let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
-            let task = read_task(dir)?;
+            let config = read_task(dir)?.insertion_config(&dir.join(super::agent::TASK_FILE))?;
             let network =
                 load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;
             let policy = QPolicy::new(
@@ -314,8 +314,8 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             );
             (
                 Some(policy),
-                task.config.observation.clone(),
-                task.config.speed_scale_mps,
+                config.observation.clone(),
+                config.speed_scale_mps,
             )
         }
     };
