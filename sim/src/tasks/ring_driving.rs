@@ -161,13 +161,14 @@ impl Default for RingDrivingConfig {
                 exit_m: 20.0,
                 ..LayoutConfig::default()
             },
-            // A close, coarse view: the lane's offset matters more here than traffic far
-            // away, and 42 × 42 × 2 keeps training on two CPU cores affordable.
+            // A close view (0.57 m a pixel): the lane's offset and direction matter more
+            // here than traffic far away; 42 × 42 × 2 keeps training on two CPU cores
+            // affordable.
             observation: BevConfig {
                 width: 42,
                 height: 42,
-                forward_m: 30.0,
-                lateral_m: 30.0,
+                forward_m: 24.0,
+                lateral_m: 24.0,
                 stack: 2,
                 path_width_m: 1.5,
                 ..BevConfig::default()

@@ -17,7 +17,7 @@ use sim::tasks::{Task as _, TaskResult, run_episodes, task_table};
 use sim::world::TrafficLevel;
 use sim::{Env as _, ObservationSpec};
 
-use super::tasks::{GenericTask, Insertion, TaskKind};
+use super::tasks::{GenericTask, Insertion, RoundaboutDriving, TaskKind};
 use super::train::{models_error, read_task, write_json};
 use super::{EvalArgs, Task, TaskRecord, episodes};
 use crate::commands::Context;
@@ -72,6 +72,7 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     }
     match agent.task.task {
         Task::RoundaboutInsertion => eval_insertion(ctx, args, agent, map, progress),
+        Task::RoundaboutDriving => eval_task::<RoundaboutDriving>(ctx, args, agent, map, progress),
     }
 }
 
@@ -273,7 +274,6 @@ struct TaskPolicyResult {
 }
 
 /// Evaluates an agent of task `K` and its baselines on every condition of `K`.
-#[allow(dead_code)] // Used once a task other than insertion is registered.
 fn eval_task<K: GenericTask>(
     ctx: &Context<'_>,
     args: &EvalArgs,

@@ -20,7 +20,7 @@ use models::dqn::{
 use serde::Serialize;
 use sim::world::TrafficLevel;
 
-use super::tasks::{Insertion, TaskKind, task_config};
+use super::tasks::{Insertion, RoundaboutDriving, TaskKind, task_config};
 use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
 use crate::commands::Context;
 use crate::error::CliError;
@@ -37,6 +37,7 @@ const RATE_WINDOW: usize = 100;
 pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     match args.task {
         Task::RoundaboutInsertion => train_task::<Insertion>(ctx, args),
+        Task::RoundaboutDriving => train_task::<RoundaboutDriving>(ctx, args),
     }
 }
 
