@@ -26,7 +26,8 @@ use crate::error::CliError;
 pub struct Config {
     #[serde(default)]
     pub map: MapConfig,
-    /// `[agent.dqn]` (hyper-parameters) and `[agent.task]` (the task's settings).
+    /// `[agent.dqn]` (hyper-parameters), `[agent.task]` (insertion's settings) and
+    /// `[agent.roundabout_driving]`.
     #[serde(default)]
     pub agent: crate::commands::agent::AgentConfig,
     /// `[run]`: the maps and stage sizes of `pipeline run`.

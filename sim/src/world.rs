@@ -11,8 +11,9 @@
 //! - Vehicles enter at the upstream end of an approach and leave at the downstream end of
 //!   an exit; at most [`TrafficConfig::cap`] others are in the roundabout (its
 //!   approaches, ring and exits) at once.
-//! - The ego (optional) is a kinematic bicycle: the caller chooses its acceleration, a pure
-//!   pursuit controller steers it along its route.
+//! - The ego (optional) is a kinematic bicycle: the caller chooses its acceleration (or
+//!   lets the ego's own driver model choose it, IDM and gap acceptance as for the others)
+//!   and its steering (or lets a pure pursuit controller steer it along its route).
 //!
 //! Everything random comes from one ChaCha8 generator seeded at [`World::new`]; vehicles
 //! live in a `Vec` in spawn order, so a seed always gives the same world.
@@ -264,8 +265,9 @@ impl Default for EgoConfig {
 /// What the caller decides for the ego in one step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EgoCommand {
-    /// m/s², clamped to the ego's limits.
-    pub accel: f64,
+    /// m/s², clamped to the ego's limits; `None` lets the ego's driver model (a middle
+    /// driver's IDM, yielding at its line until it accepts a gap) choose it.
+    pub accel: Option<f64>,
     /// Front-wheel angle (left positive), clamped to `±max_steer_rad`; `None` lets the
     /// pure pursuit controller follow the ego's route.
     pub steer_rad: Option<f64>,
@@ -521,7 +523,7 @@ impl World {
     /// and new ones may arrive.
     pub fn step(&mut self, ego_accel: f64) {
         self.step_ego(EgoCommand {
-            accel: ego_accel,
+            accel: Some(ego_accel),
             steer_rad: None,
         });
     }
@@ -530,20 +532,18 @@ impl World {
     /// instead of the pure pursuit controller.
     pub fn step_ego(&mut self, ego: EgoCommand) {
         let dt = self.config.step_s;
-        self.decide_gaps();
+        let ego_driven = ego.accel.is_none();
+        self.decide_gaps(ego_driven);
         let accels: Vec<f64> = (0..self.vehicles.len())
-            .map(|i| {
-                if self.vehicles[i].is_ego() {
-                    0.0
-                } else {
-                    self.driver_accel(i)
-                }
+            .map(|i| match (self.vehicles[i].is_ego(), ego.accel) {
+                (true, Some(a)) => a,
+                _ => self.driver_accel(i),
             })
             .collect();
         let brake = self.config.drivers.max_brake_mps2;
         for (i, a) in accels.into_iter().enumerate() {
             if self.vehicles[i].is_ego() {
-                self.move_ego(i, ego, dt);
+                self.move_ego(i, a, ego.steer_rad, dt);
             } else {
                 let v = &mut self.vehicles[i];
                 let a = a.clamp(-brake, v.driver.max_accel_mps2);
@@ -569,17 +569,17 @@ impl World {
         self.refresh_lookahead();
     }
 
-    /// Moves the ego one step: the commanded steering, or pure pursuit on its route; the
-    /// commanded acceleration.
-    fn move_ego(&mut self, i: usize, command: EgoCommand, dt: f64) {
+    /// Moves the ego one step with acceleration `accel`: the commanded steering, or pure
+    /// pursuit on its route.
+    fn move_ego(&mut self, i: usize, accel: f64, steer_rad: Option<f64>, dt: f64) {
         let cfg = self.ego_config;
         let layout = Arc::clone(&self.layout);
         let v = &mut self.vehicles[i];
         let Some(mut bike) = v.bicycle else { return };
         let path = &layout.routes[v.route].path;
-        let a = command.accel.clamp(-cfg.max_brake_mps2, cfg.max_accel_mps2);
+        let a = accel.clamp(-cfg.max_brake_mps2, cfg.max_accel_mps2);
         let (new_speed, travelled) = advance_speed(v.speed, a, dt);
-        let steer = match command.steer_rad {
+        let steer = match steer_rad {
             Some(steer) => steer.clamp(-cfg.max_steer_rad, cfg.max_steer_rad),
             None => {
                 let lookahead = (cfg.lookahead_min_m + cfg.lookahead_s * v.speed).min(8.0);
@@ -597,8 +597,9 @@ impl World {
         v.s = s.max(v.s);
         v.piece = path.piece_at(v.s, v.piece);
         let route = &layout.routes[v.route];
-        // The ego is committed once its front is clearly past the yield line.
-        v.committed = v.front_s() > route.yield_s + 0.5;
+        // The ego is committed once its front is clearly past the yield line (or once its
+        // driver model accepted a gap; `s` never decreases, so this stays set either way).
+        v.committed = v.committed || v.front_s() > route.yield_s + 0.5;
     }
 
     /// For each vehicle, the pieces of its route within the horizon. Kept fresh between
@@ -686,11 +687,12 @@ impl World {
     }
 
     /// Gap acceptance: uncommitted drivers near their yield line commit when every
-    /// circulating vehicle heading for their merge point is far enough away in time.
-    fn decide_gaps(&mut self) {
+    /// circulating vehicle heading for their merge point is far enough away in time. The
+    /// ego decides this way only when its driver model drives it (`ego_driven`).
+    fn decide_gaps(&mut self, ego_driven: bool) {
         let mut commit = Vec::new();
         for (i, v) in self.vehicles.iter().enumerate() {
-            if v.committed || v.is_ego() {
+            if v.committed || (v.is_ego() && !ego_driven) {
                 continue;
             }
             let route = &self.layout.routes[v.route];
@@ -742,8 +744,8 @@ impl World {
         }
     }
 
-    /// Acceleration of a non-ego vehicle: IDM behind its leader, and behind its yield
-    /// line while uncommitted.
+    /// Acceleration from a vehicle's driver model: IDM behind its leader, and behind its
+    /// yield line while uncommitted.
     fn driver_accel(&self, i: usize) -> f64 {
         let v = &self.vehicles[i];
         let route = &self.layout.routes[v.route];

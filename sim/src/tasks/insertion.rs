@@ -22,9 +22,10 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::roundabouts::{EgoView, RoundaboutSet, ego_scene};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
-use crate::render::{BevConfig, BevRenderer, FrameStack};
+use crate::render::{BevConfig, BevRenderer};
 use crate::roundabout::{LayoutConfig, RoundaboutLayout};
 use crate::scene::Scene;
 use crate::world::{Driver, EgoConfig, TrafficConfig, TrafficLevel, World};
@@ -177,9 +178,8 @@ pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
 /// the routes of each usable roundabout and its static bird's-eye raster.
 #[derive(Debug)]
 pub struct InsertionSetup {
-    map: Arc<Map>,
     config: InsertionConfig,
-    roundabouts: Vec<(Arc<RoundaboutLayout>, BevRenderer)>,
+    roundabouts: RoundaboutSet,
 }
 
 impl InsertionSetup {
@@ -187,34 +187,15 @@ impl InsertionSetup {
     /// to an exit. Fails when there is none, or the configuration is invalid.
     pub fn new(map: Arc<Map>, config: InsertionConfig) -> Result<Arc<Self>, SimError> {
         validate(&config)?;
-        let mut roundabouts = Vec::new();
-        let mut problems = Vec::new();
-        for id in map.roundabouts.keys() {
-            match RoundaboutLayout::new(&map, *id, &config.layout) {
-                Ok(layout) => {
-                    let renderer =
-                        BevRenderer::new(&map, layout.bounds, config.observation.clone())?;
-                    roundabouts.push((Arc::new(layout), renderer));
-                }
-                Err(e) => problems.push(e.to_string()),
-            }
-        }
-        if roundabouts.is_empty() {
-            return Err(SimError::Map(if problems.is_empty() {
-                "the map has no roundabout".into()
-            } else {
-                problems.join("; ")
-            }));
-        }
+        let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
         Ok(Arc::new(InsertionSetup {
-            map,
             config,
             roundabouts,
         }))
     }
 
     pub fn map(&self) -> &Arc<Map> {
-        &self.map
+        self.roundabouts.map()
     }
 
     pub fn config(&self) -> &InsertionConfig {
@@ -222,7 +203,7 @@ impl InsertionSetup {
     }
 
     pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
-        self.roundabouts.iter().map(|(l, _)| l)
+        self.roundabouts.layouts()
     }
 
     pub fn observation_spec(&self) -> ObservationSpec {
@@ -301,18 +282,15 @@ pub struct RoundaboutInsertion {
     entered_at_s: Option<f64>,
     outcome: Option<Outcome>,
     trajectory: Vec<Point>,
-    frame: Vec<u8>,
-    stack: FrameStack,
+    view: EgoView,
     /// The ego's following model (IDM with a middle driver's parameters).
     follower: Driver,
-    /// Whether observations are drawn (off: empty layers, for policies that do not read them).
-    rendering: bool,
 }
 
 impl RoundaboutInsertion {
     pub fn new(setup: Arc<InsertionSetup>) -> Self {
         let config = setup.config.clone();
-        let stack = FrameStack::new(config.observation.frame_len(), config.observation.stack);
+        let view = EgoView::new(&config.observation);
         let follower = Driver::new(&config.traffic.drivers, 0.5);
         RoundaboutInsertion {
             setup,
@@ -331,17 +309,15 @@ impl RoundaboutInsertion {
             entered_at_s: None,
             outcome: None,
             trajectory: Vec::new(),
-            frame: Vec::new(),
-            stack,
+            view,
             follower,
-            rendering: true,
         }
     }
 
     /// Turns drawing the bird's-eye layers on or off (off: observations carry empty
     /// layers; the episodes themselves do not change).
     pub fn set_rendering(&mut self, on: bool) {
-        self.rendering = on;
+        self.view.set_rendering(on);
     }
 
     /// Sets the traffic level of the following episodes.
@@ -374,28 +350,23 @@ impl RoundaboutInsertion {
 
     /// The newest bird's-eye frame (`[layer, row, column]`, see [`BevConfig::layers`]).
     pub fn newest_frame(&self) -> &[u8] {
-        self.stack.newest()
+        self.view.newest()
     }
 
     /// The current scene (None before the first reset).
     pub fn scene(&self) -> Option<Scene<'_>> {
-        let world = self.world.as_ref()?;
-        let ego = world.ego_index()?;
-        let mut actors = world.actors();
-        actors[ego].aggressiveness = Some(self.aggressiveness);
-        Some(Scene {
-            map: &self.setup.map,
-            time_s: world.time_s() - self.start_time_s,
-            actors,
-            ego,
-            ego_path: world.route(&world.vehicles()[ego]).path.outline(),
-        })
+        ego_scene(
+            self.setup.map(),
+            self.world.as_ref()?,
+            self.start_time_s,
+            Some(self.aggressiveness),
+        )
     }
 
     /// The bird's-eye renderer of the current episode's roundabout: what draws the layers,
     /// so a scene rebuilt elsewhere (from a recorded log) is drawn exactly the same way.
     pub fn renderer(&self) -> &BevRenderer {
-        &self.setup.roundabouts[self.roundabout].1
+        self.setup.roundabouts.renderer(self.roundabout)
     }
 
     pub fn summary(&self) -> EpisodeSummary {
@@ -501,10 +472,7 @@ impl RoundaboutInsertion {
     }
 
     fn observation(&self) -> Observation {
-        let mut layers = Vec::new();
-        if self.rendering {
-            self.stack.write(&mut layers);
-        }
+        let layers = self.view.layers();
         let (speed, target) = self.world_and_ego().map_or((0.0, 0.0), |(world, ego)| {
             (world.vehicles()[ego].speed, self.target_speed(world, ego))
         });
@@ -518,17 +486,21 @@ impl RoundaboutInsertion {
         Observation { layers, scalars }
     }
 
-    fn render(&mut self) {
-        if !self.rendering {
-            return;
-        }
-        let mut frame = std::mem::take(&mut self.frame);
-        if let Some(scene) = self.scene() {
-            self.setup.roundabouts[self.roundabout]
-                .1
-                .render(&scene, &mut frame);
-        }
-        self.frame = frame;
+    /// Draws the current scene: the first frame of an episode, or the next one.
+    fn render(&mut self, first: bool) {
+        let scene = self.world.as_ref().and_then(|world| {
+            ego_scene(
+                self.setup.map(),
+                world,
+                self.start_time_s,
+                Some(self.aggressiveness),
+            )
+        });
+        self.view.draw(
+            self.setup.roundabouts.renderer(self.roundabout),
+            scene,
+            first,
+        );
     }
 
     /// Reward terms that apply every step: speed, indecision, danger.
@@ -590,15 +562,8 @@ impl Env for RoundaboutInsertion {
 
     fn reset(&mut self, seed: u64) -> Observation {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let pick = |rng: &mut ChaCha8Rng, n: usize| {
-            ((rng.random::<f64>() * n as f64) as usize).min(n.saturating_sub(1))
-        };
-        self.roundabout = pick(&mut rng, self.setup.roundabouts.len());
-        let layout = Arc::clone(&self.setup.roundabouts[self.roundabout].0);
-        let entries: Vec<usize> = layout.usable_entries().collect();
-        let entry = entries[pick(&mut rng, entries.len())];
-        let routes = &layout.routes_by_entry[entry];
-        self.route = routes[pick(&mut rng, routes.len())];
+        (self.roundabout, self.route) = self.setup.roundabouts.draw_route(&mut rng);
+        let layout = Arc::clone(self.setup.roundabouts.layout(self.roundabout));
         let drawn_aggressiveness: f64 = rng.random();
         self.aggressiveness = self.config.aggressiveness.unwrap_or(drawn_aggressiveness);
         let speed_draw: f64 = rng.random();
@@ -635,10 +600,7 @@ impl Env for RoundaboutInsertion {
             let p = w.vehicles()[e].position;
             self.trajectory.push(p);
         }
-        self.render();
-        if self.rendering {
-            self.stack.reset(&self.frame);
-        }
+        self.render(true);
         self.observation()
     }
 
@@ -668,10 +630,7 @@ impl Env for RoundaboutInsertion {
         self.last_action = action;
         self.outcome = outcome;
         self.episode_return += reward;
-        self.render();
-        if self.rendering {
-            self.stack.push(&self.frame);
-        }
+        self.render(false);
         Step {
             observation: self.observation(),
             reward: reward as f32,
@@ -700,7 +659,7 @@ impl RoundaboutInsertion {
         let mut reward = self.step_reward(world, ego, action);
         let r = self.config.reward;
         let sigma = 1.0 - self.aggressiveness;
-        let raster = self.setup.roundabouts[self.roundabout].1.raster();
+        let raster = self.setup.roundabouts.renderer(self.roundabout).raster();
         let outcome = if world.collision_with(ego).is_some() {
             Some(Outcome::Crashed)
         } else if !raster.navigable(position) {

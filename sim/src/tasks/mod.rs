@@ -1,11 +1,15 @@
 //! Driving tasks: actions, reward, termination, metrics and baselines on the traffic world.
 //!
-//! Every task is an [`Env`]. Roundabout insertion has its own evaluation harness
+//! Every task is an [`Env`]: roundabout insertion ([`insertion`]) and roundabout driving
+//! ([`ring_driving`]), sharing the prepared roundabouts and the ego's view
+//! ([`roundabouts`]). Roundabout insertion has its own evaluation harness
 //! ([`crate::eval`], conditions of traffic × aggressiveness); the other tasks implement
 //! [`Task`] and are evaluated by [`run_episodes`] with any [`TaskPolicy`]: a learned
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
 
 pub mod insertion;
+pub mod ring_driving;
+pub mod roundabouts;
 pub mod route;
 
 use rayon::prelude::*;
@@ -20,6 +24,11 @@ pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
     RoundaboutInsertion,
 };
+pub use ring_driving::{
+    PursuitRule, RingDriving, RingDrivingConfig, RingDrivingSetup, RingDrivingSummary,
+    RingRewardConfig, SteerAction,
+};
+pub use roundabouts::{EgoView, RoundaboutSet, ego_scene};
 
 /// A task whose finished episodes can be summarised for evaluation tables.
 pub trait Task: Env + Sized {
@@ -205,7 +214,7 @@ pub fn task_table(rows: &[(String, TaskResult)]) -> String {
         out.push_str(&format!(" {name} |"));
     }
     out.push_str("\n|");
-    out.push_str(&" --- |".repeat(6 + metric_names.len()));
+    out.push_str(&" --- |".repeat(7 + metric_names.len()));
     out.push('\n');
     for (policy, r) in rows {
         out.push_str(&format!(
@@ -226,4 +235,35 @@ pub fn task_table(rows: &[(String, TaskResult)]) -> String {
         out.push('\n');
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Clone, Serialize)]
+    struct One(Outcome);
+
+    impl TaskSummary for One {
+        fn outcome(&self) -> Outcome {
+            self.0
+        }
+        fn episode_return(&self) -> f64 {
+            1.0
+        }
+        fn metrics(&self) -> Vec<(&'static str, f64)> {
+            vec![("a m", 1.0), ("b s", f64::NAN)]
+        }
+    }
+
+    #[test]
+    fn every_table_row_has_the_header_s_columns() {
+        let result = TaskResult::of(&[One(Outcome::Reached), One(Outcome::Crashed)]);
+        assert_eq!(result.metrics[0].1, Some(1.0));
+        assert_eq!(result.metrics[1].1, None);
+        let table = task_table(&[("p".into(), result)]);
+        let columns: Vec<usize> = table.lines().map(|l| l.matches('|').count()).collect();
+        assert_eq!(columns.len(), 3);
+        assert!(columns.iter().all(|&c| c == columns[0]), "{table}");
+    }
 }

@@ -1,14 +1,15 @@
 //! `pipeline agent train | eval`: DQN-family agents on the driving tasks.
 //!
 //! ```text
-//! pipeline agent train --task roundabout-insertion --map MAP --out DIR [--steps N] [--traffic LEVEL] [--resume]
+//! pipeline agent train --task roundabout-insertion|roundabout-driving --map MAP --out DIR [--steps N] [--traffic LEVEL] [--resume]
 //! pipeline agent eval  --agent DIR --map MAP [--episodes N] [--out DIR]
 //! ```
 //!
 //! `MAP` is a map folder or file written by `pipeline map import`, or an OSM / Lanelet2
 //! file imported on the fly with the default car profile. The hyper-parameters come from
 //! the `[agent.dqn]` table of `--config` (see [`models::dqn::DqnConfig`]); the task's from
-//! `[agent.task]` (see [`sim::tasks::InsertionConfig`]).
+//! `[agent.task]` for insertion (see [`sim::tasks::InsertionConfig`]) and
+//! `[agent.roundabout_driving]` for roundabout driving (see [`sim::tasks::RingDrivingConfig`]).
 
 mod episodes;
 mod eval;
@@ -53,6 +54,8 @@ pub enum Task {
     /// Follow a planned route over an imported campus, keeping in lane among other traffic
     /// (the AIT / MTSU studies).
     RouteFollowing,
+    /// Steer along a route through a roundabout for 10 s (the ITS study).
+    RoundaboutDriving,
 }
 
 impl Task {
@@ -157,6 +160,8 @@ pub struct AgentConfig {
     pub task: InsertionConfig,
     /// Route following.
     pub route: sim::tasks::route::RouteConfig,
+    /// `[agent.roundabout_driving]`: the roundabout-driving task's settings.
+    pub roundabout_driving: sim::tasks::RingDrivingConfig,
 }
 
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same

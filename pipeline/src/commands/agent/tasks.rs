@@ -19,7 +19,10 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 use sim::Env;
 use sim::tasks::route::{RouteConfig, RouteFollowing, RouteSetup, RouteSplit};
-use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
+use sim::tasks::{
+    InsertionConfig, InsertionSetup, RingDriving, RingDrivingConfig, RingDrivingSetup,
+    RoundaboutInsertion,
+};
 use sim::world::TrafficLevel;
 
 use models::policy::QPolicy;
@@ -137,6 +140,76 @@ impl TaskKind for Insertion {
             aggressiveness: 0.5,
         };
         episodes::record(rec, setup, policy, condition, count, seed)
+    }
+}
+
+/// Roundabout driving (the ITS study): steering along a route through the roundabout.
+#[derive(Debug)]
+pub struct RoundaboutDriving;
+
+impl TaskKind for RoundaboutDriving {
+    type Env = RingDriving;
+    type Config = RingDrivingConfig;
+    type Setup = RingDrivingSetup;
+
+    fn config(agent: &AgentConfig) -> RingDrivingConfig {
+        agent.roundabout_driving.clone()
+    }
+
+    fn setup(map: Option<&Path>, config: &RingDrivingConfig) -> Result<Arc<RingDrivingSetup>> {
+        let loaded = required_map(map, "roundabout-driving")?;
+        RingDrivingSetup::new(Arc::new(loaded), config.clone()).map_err(|e| {
+            CliError::new(
+                format!("cannot set up roundabout driving: {e}"),
+                "give a map with a roundabout (e.g. data/osm/montlake_roundabout.osm.pbf) and \
+                 valid [agent.roundabout_driving] settings",
+            )
+            .into()
+        })
+    }
+
+    fn map(setup: &RingDrivingSetup) -> Option<&Map> {
+        Some(setup.map())
+    }
+
+    fn train_env(setup: &Arc<RingDrivingSetup>, traffic: TrafficLevel) -> RingDriving {
+        let mut env = RingDriving::new(Arc::clone(setup));
+        env.set_traffic(traffic);
+        env
+    }
+
+    fn record_episodes(
+        rec: &Stream,
+        setup: &Arc<RingDrivingSetup>,
+        policy: &QPolicy,
+        traffic: TrafficLevel,
+        count: usize,
+        seed: u64,
+    ) -> Result<()> {
+        episodes::record_task(rec, || Self::train_env(setup, traffic), policy, count, seed)
+    }
+}
+
+impl GenericTask for RoundaboutDriving {
+    /// One condition per traffic level, `traffic low` / `medium` / `high` by default.
+    fn conditions(traffic: &[TrafficLevel]) -> Vec<String> {
+        let levels = if traffic.is_empty() {
+            &TrafficLevel::ALL[..]
+        } else {
+            traffic
+        };
+        levels
+            .iter()
+            .map(|t| format!("traffic {}", t.name()))
+            .collect()
+    }
+
+    fn eval_env(setup: &Arc<RingDrivingSetup>, condition: &str) -> RingDriving {
+        let level = condition
+            .strip_prefix("traffic ")
+            .and_then(|name| name.parse().ok())
+            .unwrap_or(TrafficLevel::Medium);
+        Self::train_env(setup, level)
     }
 }
 

@@ -1,0 +1,852 @@
+//! Roundabout driving (after the ITS study): the ego is on a route through a roundabout
+//! (entry → ring → exit), a little before its yield line or already in the ring, and must
+//! steer along that route, the target lane, for 10 s among the world's traffic.
+//!
+//! - Actions (steering only): **forward** (front wheels straight), **forward-left** and
+//!   **forward-right** (wheels at `±steer_rad`, left positive), each the angle the wheels
+//!   turn towards, by at most `steer_rate_radps` (the steering actuator's rate). Fixed
+//!   angles, as the study's actions name directions rather than steering increments; the
+//!   rate limit keeps a switch of action from jerking the wheels, and lets the agent hold
+//!   an intermediate curvature by alternating actions.
+//! - Speed is not the agent's: the ego's own driver model (a middle driver's IDM behind
+//!   the vehicles ahead on its route, waiting at its yield line until it accepts a gap,
+//!   as every other driver of [`crate::world`]) chooses its acceleration.
+//! - Reward per step: `min(1, 1/α) + min(1, 1/(10·d))`, α the absolute difference between
+//!   the ego's heading and the route's at the point of the route nearest the ego's centre,
+//!   **in degrees**, d that distance **in metres** (each term is 1 at α = 0 or d = 0);
+//!   minus `far_penalty` (0.5) while the ego's centre is more than `far_from_ring_m` (30 m)
+//!   from the roundabout's centre circle. The step that ends the episode in a collision or
+//!   off the road gets `−collision_penalty` / `−off_road_penalty` (−1) instead. With α in
+//!   radians the first term would be 1 for every deviation under 57°, a reward that does not
+//!   tell good steering from poor.
+//! - Termination: Crashed (the ego's footprint overlaps another's), OffRoad (its centre
+//!   more than `max_lane_distance_m` (4 m) from the route or off the navigable area),
+//!   Reached after `episode_s` (10 s) without either, or when the ego reaches the end of its
+//!   route sooner: the task has no goal other than driving its time without a fault, so
+//!   that is its success. Being far from the roundabout does not end an episode (the issue
+//!   gives it as a per-step penalty); in practice the 4 m rule ends a stray one first.
+//! - Observation: the bird's-eye layers around the ego (navigable area, the route as the
+//!   target lane, every vehicle's footprint, stop / yield lines; ego-centred and aligned
+//!   with its heading, `stack` frames) and two scalars, the speed over `speed_scale_mps` and
+//!   the front wheels' angle over `steer_rad`. Neither the heading nor the distance
+//!   deviation is an input: the agent must read them from the route in the layers.
+//! - Metrics: mean angle deviation (°) and mean distance deviation (m) over the episode's
+//!   steps, the episode's length (s), the mean speed (km/h).
+
+use std::sync::Arc;
+
+use maps::{Map, Point};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::roundabouts::{EgoView, RoundaboutSet, ego_scene};
+use super::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
+use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
+use crate::error::SimError;
+use crate::kinematics::Bicycle;
+use crate::path::wrap_angle;
+use crate::render::{BevConfig, BevRenderer};
+use crate::roundabout::{LayoutConfig, RingRoute, RoundaboutLayout};
+use crate::scene::Scene;
+use crate::world::{EgoCommand, EgoConfig, TrafficConfig, TrafficLevel, World};
+
+/// The three actions, by index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SteerAction {
+    Forward = 0,
+    ForwardLeft = 1,
+    ForwardRight = 2,
+}
+
+impl SteerAction {
+    pub const ALL: [SteerAction; 3] = [
+        SteerAction::Forward,
+        SteerAction::ForwardLeft,
+        SteerAction::ForwardRight,
+    ];
+    pub const NAMES: [&'static str; 3] = ["forward", "forward_left", "forward_right"];
+
+    pub fn from_index(i: usize) -> Option<SteerAction> {
+        SteerAction::ALL.get(i).copied()
+    }
+
+    /// The wheel angle the action turns towards, for actions at `±steer_rad`.
+    pub fn target_steer(self, steer_rad: f64) -> f64 {
+        match self {
+            SteerAction::Forward => 0.0,
+            SteerAction::ForwardLeft => steer_rad,
+            SteerAction::ForwardRight => -steer_rad,
+        }
+    }
+}
+
+/// Reward constants (the issue's by default).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RingRewardConfig {
+    /// The reward of a step that ends in a collision is minus this.
+    pub collision_penalty: f64,
+    /// The reward of a step that ends off the road is minus this.
+    pub off_road_penalty: f64,
+    /// Taken off every step while the ego is more than `far_from_ring_m` from the ring.
+    pub far_penalty: f64,
+    /// From the roundabout's centre circle (its mapped radius around its centre), m.
+    pub far_from_ring_m: f64,
+}
+
+impl Default for RingRewardConfig {
+    fn default() -> Self {
+        RingRewardConfig {
+            collision_penalty: 1.0,
+            off_road_penalty: 1.0,
+            far_penalty: 0.5,
+            far_from_ring_m: 30.0,
+        }
+    }
+}
+
+/// The per-step lane reward: `min(1, 1/α) + min(1, 1/(10·d))`, α in degrees and d in
+/// metres, both as absolute values; each term is 1 at 0 (and for NaN inputs, 0).
+pub fn lane_reward(angle_deg: f64, distance_m: f64) -> f64 {
+    let term = |x: f64| {
+        let x = x.abs();
+        if x.is_nan() {
+            0.0
+        } else if x <= 1.0 {
+            1.0
+        } else {
+            1.0 / x
+        }
+    };
+    term(angle_deg) + term(10.0 * distance_m)
+}
+
+/// Everything about the task; TOML-friendly, every field defaulted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RingDrivingConfig {
+    pub traffic: TrafficConfig,
+    pub ego: EgoConfig,
+    pub layout: LayoutConfig,
+    pub observation: BevConfig,
+    pub reward: RingRewardConfig,
+    /// Length of an episode, s.
+    pub episode_s: f64,
+    /// The wheel angle of forward-left / forward-right, rad (at most `ego.max_steer_rad`).
+    pub steer_rad: f64,
+    /// How fast the wheels turn towards an action's angle, rad/s.
+    pub steer_rate_radps: f64,
+    /// Probability that an episode starts in the ring rather than before the yield line.
+    pub ring_start_probability: f64,
+    /// Before the ring, the ego's front starts this far before its yield line (uniform), m.
+    pub start_before_yield_m: (f64, f64),
+    /// The ego starts at this fraction of its route's nominal speed (uniform).
+    pub start_speed_fraction: (f64, f64),
+    /// Farther than this from the route, the episode ends off the road, m.
+    pub max_lane_distance_m: f64,
+    /// Speeds are divided by this in the scalar inputs, m/s.
+    pub speed_scale_mps: f64,
+}
+
+impl Default for RingDrivingConfig {
+    fn default() -> Self {
+        RingDrivingConfig {
+            traffic: TrafficConfig::default(),
+            ego: EgoConfig::default(),
+            // Exits 20 m long (10 m for insertion): 10 s from before the line at the
+            // speeds of small roundabouts mostly fit on the route.
+            layout: LayoutConfig {
+                exit_m: 20.0,
+                ..LayoutConfig::default()
+            },
+            // A close view (0.57 m a pixel): the lane's offset and direction matter more
+            // here than traffic far away; 42 × 42 × 2 keeps training on two CPU cores
+            // affordable.
+            observation: BevConfig {
+                width: 42,
+                height: 42,
+                forward_m: 24.0,
+                lateral_m: 24.0,
+                stack: 2,
+                path_width_m: 1.5,
+                ..BevConfig::default()
+            },
+            reward: RingRewardConfig::default(),
+            episode_s: 10.0,
+            steer_rad: 0.6,
+            steer_rate_radps: 2.0,
+            ring_start_probability: 0.5,
+            start_before_yield_m: (3.0, 12.0),
+            start_speed_fraction: (0.5, 1.0),
+            max_lane_distance_m: 4.0,
+            speed_scale_mps: 15.0,
+        }
+    }
+}
+
+fn validate(c: &RingDrivingConfig) -> Result<(), SimError> {
+    c.observation.validate()?;
+    let positive = [
+        ("traffic.step_s", c.traffic.step_s),
+        ("episode_s", c.episode_s),
+        ("steer_rad", c.steer_rad),
+        ("steer_rate_radps", c.steer_rate_radps),
+        ("max_lane_distance_m", c.max_lane_distance_m),
+        ("speed_scale_mps", c.speed_scale_mps),
+        ("ego.max_steer_rad", c.ego.max_steer_rad),
+        ("ego.wheelbase_m", c.ego.wheelbase_m),
+    ];
+    for (name, v) in positive {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(SimError::Config(format!("{name} = {v} must be positive")));
+        }
+    }
+    if !(0.0..=1.0).contains(&c.ring_start_probability) {
+        return Err(SimError::Config(format!(
+            "ring_start_probability = {} must lie in [0, 1]",
+            c.ring_start_probability
+        )));
+    }
+    for (name, (lo, hi)) in [
+        ("start_before_yield_m", c.start_before_yield_m),
+        ("start_speed_fraction", c.start_speed_fraction),
+    ] {
+        if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo <= hi) {
+            return Err(SimError::Config(format!(
+                "{name} = ({lo}, {hi}) must be a range of non-negative numbers"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Number of scalar inputs: speed, wheel angle.
+pub const SCALARS: usize = 2;
+
+/// The observation shape of the task drawn with `bev`.
+pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
+    ObservationSpec {
+        channels: bev.channels(),
+        height: bev.height,
+        width: bev.width,
+        scalars: SCALARS,
+    }
+}
+
+/// What is prepared once per map and shared by every environment on it (read-only).
+#[derive(Debug)]
+pub struct RingDrivingSetup {
+    config: RingDrivingConfig,
+    roundabouts: RoundaboutSet,
+}
+
+impl RingDrivingSetup {
+    /// Prepares every roundabout of `map` that has a route through its ring. Fails when
+    /// there is none, or the configuration is invalid.
+    pub fn new(map: Arc<Map>, config: RingDrivingConfig) -> Result<Arc<Self>, SimError> {
+        validate(&config)?;
+        let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
+        Ok(Arc::new(RingDrivingSetup {
+            config,
+            roundabouts,
+        }))
+    }
+
+    pub fn map(&self) -> &Arc<Map> {
+        self.roundabouts.map()
+    }
+
+    pub fn config(&self) -> &RingDrivingConfig {
+        &self.config
+    }
+
+    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
+        self.roundabouts.layouts()
+    }
+
+    pub fn observation_spec(&self) -> ObservationSpec {
+        observation_spec(&self.config.observation)
+    }
+}
+
+/// How one episode went.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RingDrivingSummary {
+    pub outcome: Outcome,
+    pub steps: usize,
+    pub episode_return: f64,
+    pub mean_angle_deviation_deg: f64,
+    pub mean_distance_deviation_m: f64,
+    pub episode_length_s: f64,
+    pub mean_speed_kmh: f64,
+}
+
+impl TaskSummary for RingDrivingSummary {
+    fn outcome(&self) -> Outcome {
+        self.outcome
+    }
+
+    fn episode_return(&self) -> f64 {
+        self.episode_return
+    }
+
+    fn metrics(&self) -> Vec<(&'static str, f64)> {
+        vec![
+            ("mean angle deviation °", self.mean_angle_deviation_deg),
+            ("mean distance deviation m", self.mean_distance_deviation_m),
+            ("episode length s", self.episode_length_s),
+            ("mean speed km/h", self.mean_speed_kmh),
+        ]
+    }
+}
+
+/// Where the ego is relative to its route: the deviations the reward and metrics use.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaneDeviation {
+    /// Absolute heading difference, degrees.
+    pub angle_deg: f64,
+    /// From the ego's centre to the nearest point of the route, m.
+    pub distance_m: f64,
+}
+
+/// The roundabout driving task as an [`Env`] and a [`Task`].
+#[derive(Debug)]
+pub struct RingDriving {
+    setup: Arc<RingDrivingSetup>,
+    config: RingDrivingConfig,
+    roundabout: usize,
+    world: Option<World>,
+    /// The front wheels' angle, rad (left positive).
+    steer: f64,
+    steps: usize,
+    start_time_s: f64,
+    episode_return: f64,
+    angle_sum_deg: f64,
+    distance_sum_m: f64,
+    speed_sum_mps: f64,
+    outcome: Option<Outcome>,
+    trajectory: Vec<Point>,
+    view: EgoView,
+}
+
+impl RingDriving {
+    pub fn new(setup: Arc<RingDrivingSetup>) -> Self {
+        let config = setup.config.clone();
+        let view = EgoView::new(&config.observation);
+        RingDriving {
+            setup,
+            config,
+            roundabout: 0,
+            world: None,
+            steer: 0.0,
+            steps: 0,
+            start_time_s: 0.0,
+            episode_return: 0.0,
+            angle_sum_deg: 0.0,
+            distance_sum_m: 0.0,
+            speed_sum_mps: 0.0,
+            outcome: None,
+            trajectory: Vec::new(),
+            view,
+        }
+    }
+
+    /// Turns drawing the bird's-eye layers on or off (off: observations carry empty
+    /// layers; the episodes themselves do not change).
+    pub fn set_rendering(&mut self, on: bool) {
+        self.view.set_rendering(on);
+    }
+
+    /// Sets the traffic level of the following episodes.
+    pub fn set_traffic(&mut self, level: TrafficLevel) {
+        self.config.traffic.level = level;
+    }
+
+    pub fn config(&self) -> &RingDrivingConfig {
+        &self.config
+    }
+
+    pub fn world(&self) -> Option<&World> {
+        self.world.as_ref()
+    }
+
+    /// The episode's outcome once it has ended.
+    pub fn outcome(&self) -> Option<Outcome> {
+        self.outcome
+    }
+
+    /// The front wheels' angle, rad (left positive).
+    pub fn steer_rad(&self) -> f64 {
+        self.steer
+    }
+
+    /// The newest bird's-eye frame (`[layer, row, column]`, see [`BevConfig::layers`]).
+    pub fn newest_frame(&self) -> &[u8] {
+        self.view.newest()
+    }
+
+    /// The bird's-eye renderer of the current episode's roundabout.
+    pub fn renderer(&self) -> &BevRenderer {
+        self.setup.roundabouts.renderer(self.roundabout)
+    }
+
+    /// The wheel angle of forward-left (forward-right is its opposite), rad.
+    fn action_steer(&self) -> f64 {
+        self.config.steer_rad.min(self.config.ego.max_steer_rad)
+    }
+
+    /// The wheel angle after one step of `action` from the current one.
+    pub fn next_steer(&self, action: SteerAction) -> f64 {
+        let max_turn = self.config.steer_rate_radps * self.config.traffic.step_s;
+        let target = action.target_steer(self.action_steer());
+        self.steer + (target - self.steer).clamp(-max_turn, max_turn)
+    }
+
+    /// The ego's deviation from its route (None before a reset).
+    pub fn deviation(&self) -> Option<LaneDeviation> {
+        let world = self.world.as_ref()?;
+        let ego = world.ego_index()?;
+        let me = &world.vehicles()[ego];
+        Some(deviation_from(
+            world.route(me),
+            me.position,
+            me.heading,
+            me.s,
+        ))
+    }
+
+    /// What pure pursuit on the route would set the wheels to (the world's controller,
+    /// with its look-ahead), rad; 0 before a reset.
+    pub fn pursuit_steer(&self) -> f64 {
+        let Some(world) = self.world.as_ref() else {
+            return 0.0;
+        };
+        world
+            .ego_index()
+            .map_or(0.0, |ego| pursuit_steer(world, ego, &self.config.ego))
+    }
+
+    /// The rule baseline's choice: the action whose next wheel angle is nearest to pure
+    /// pursuit's (reads the privileged route and pose).
+    pub fn pursuit_action(&self) -> SteerAction {
+        let wanted = self.pursuit_steer();
+        SteerAction::ALL
+            .into_iter()
+            .min_by(|a, b| {
+                (self.next_steer(*a) - wanted)
+                    .abs()
+                    .total_cmp(&(self.next_steer(*b) - wanted).abs())
+            })
+            .unwrap_or(SteerAction::Forward)
+    }
+
+    fn observation(&self) -> Observation {
+        let speed = self
+            .world
+            .as_ref()
+            .and_then(|w| Some(w.vehicles()[w.ego_index()?].speed))
+            .unwrap_or(0.0);
+        Observation {
+            layers: self.view.layers(),
+            scalars: vec![
+                (speed / self.config.speed_scale_mps) as f32,
+                (self.steer / self.action_steer()) as f32,
+            ],
+        }
+    }
+
+    /// Draws the current scene: the first frame of an episode, or the next one.
+    fn render(&mut self, first: bool) {
+        let scene = self
+            .world
+            .as_ref()
+            .and_then(|world| ego_scene(self.setup.map(), world, self.start_time_s, None));
+        self.view.draw(
+            self.setup.roundabouts.renderer(self.roundabout),
+            scene,
+            first,
+        );
+    }
+
+    /// After a world step: the reward and whether (and how) the episode ended.
+    fn resolve(&mut self, world: &mut World) -> (f64, Option<Outcome>) {
+        let Some(ego) = world.ego_index() else {
+            return (0.0, Some(Outcome::TimeOver));
+        };
+        let (position, speed, s, deviation) = {
+            let me = &world.vehicles()[ego];
+            let route = world.route(me);
+            (
+                me.position,
+                me.speed,
+                me.s,
+                deviation_from(route, me.position, me.heading, me.s),
+            )
+        };
+        self.steps += 1;
+        self.speed_sum_mps += speed;
+        self.angle_sum_deg += deviation.angle_deg;
+        self.distance_sum_m += deviation.distance_m;
+        self.trajectory.push(position);
+        let c = &self.config;
+        let r = c.reward;
+        let layout = world.layout();
+        let from_ring = position.distance(layout.centre) - layout.radius_m;
+        let mut reward = lane_reward(deviation.angle_deg, deviation.distance_m);
+        if from_ring > r.far_from_ring_m {
+            reward -= r.far_penalty;
+        }
+        let route_end = world.route(&world.vehicles()[ego]).path.length() - c.ego.length_m / 2.0;
+        let raster = self.setup.roundabouts.renderer(self.roundabout).raster();
+        let elapsed = world.time_s() - self.start_time_s;
+        if world.collision_with(ego).is_some() {
+            (-r.collision_penalty, Some(Outcome::Crashed))
+        } else if deviation.distance_m > c.max_lane_distance_m || !raster.navigable(position) {
+            (-r.off_road_penalty, Some(Outcome::OffRoad))
+        } else if elapsed >= c.episode_s - 1e-9 || s >= route_end {
+            (reward, Some(Outcome::Reached))
+        } else {
+            (reward, None)
+        }
+    }
+}
+
+/// The deviation of a pose from `route`, looking for the nearest point of the route
+/// within a few metres of `s_hint` (the ego's progress along it).
+fn deviation_from(route: &RingRoute, position: Point, heading: f64, s_hint: f64) -> LaneDeviation {
+    let (s, distance_m) = route.path.project(position, s_hint, 3.0, 3.0);
+    let (_, lane_heading) = route.path.pose_at(s);
+    LaneDeviation {
+        angle_deg: wrap_angle(heading - lane_heading).abs().to_degrees(),
+        distance_m,
+    }
+}
+
+/// The world's pure pursuit wheel angle for vehicle `ego` on its route.
+fn pursuit_steer(world: &World, ego: usize, cfg: &EgoConfig) -> f64 {
+    let me = &world.vehicles()[ego];
+    let lookahead = (cfg.lookahead_min_m + cfg.lookahead_s * me.speed).min(8.0);
+    let (target, _) = world.route(me).path.pose_at(me.s + lookahead);
+    Bicycle::at_centre(me.position, me.heading, cfg.wheelbase_m)
+        .pure_pursuit(target, cfg.max_steer_rad)
+}
+
+impl Env for RingDriving {
+    fn observation_spec(&self) -> ObservationSpec {
+        self.setup.observation_spec()
+    }
+
+    fn action_count(&self) -> usize {
+        SteerAction::ALL.len()
+    }
+
+    fn action_names(&self) -> &'static [&'static str] {
+        &SteerAction::NAMES
+    }
+
+    fn reset(&mut self, seed: u64) -> Observation {
+        let c = &self.config;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let (roundabout, route_index) = self.setup.roundabouts.draw_route(&mut rng);
+        self.roundabout = roundabout;
+        // Every draw is made whatever the branch, so one choice never shifts the next.
+        let in_ring = rng.random::<f64>() < c.ring_start_probability;
+        let place_draw: f64 = rng.random();
+        let speed_draw: f64 = rng.random();
+        let world_seed: u64 = rng.random();
+        let layout = Arc::clone(self.setup.roundabouts.layout(roundabout));
+        let route = &layout.routes[route_index];
+        let half = c.ego.length_m / 2.0;
+        let s0 = if in_ring {
+            // The centre between just past the merge point and the exit, so the driver
+            // model sees it over its line (committed) from the start.
+            let from = route.merge_s + 1.0;
+            from + place_draw * (route.exit_s - from).max(0.0)
+        } else {
+            let (lo, hi) = c.start_before_yield_m;
+            route.yield_s - half - (lo + (hi - lo) * place_draw)
+        };
+        let s0 = s0.clamp(half, (route.path.length() - c.ego.length_m).max(half));
+        let (lo, hi) = c.start_speed_fraction;
+        let speed = route.path.speed_at(s0 + half) * (lo + (hi - lo) * speed_draw);
+        let mut world = World::new(Arc::clone(&layout), c.traffic, c.ego, world_seed);
+        world.warm_up(c.traffic.warm_up_s);
+        world.insert_ego(route_index, s0, speed, 8.0);
+        self.start_time_s = world.time_s();
+        // The wheels start where the path-following controller would hold them: a driver
+        // already in a curve is already steering.
+        self.steer = world.ego_index().map_or(0.0, |ego| {
+            let s = pursuit_steer(&world, ego, &c.ego);
+            let limit = self.action_steer();
+            s.clamp(-limit, limit)
+        });
+        self.trajectory.clear();
+        if let Some(ego) = world.ego_index() {
+            self.trajectory.push(world.vehicles()[ego].position);
+        }
+        self.world = Some(world);
+        self.steps = 0;
+        self.episode_return = 0.0;
+        self.angle_sum_deg = 0.0;
+        self.distance_sum_m = 0.0;
+        self.speed_sum_mps = 0.0;
+        self.outcome = None;
+        self.render(true);
+        self.observation()
+    }
+
+    fn step(&mut self, action: usize) -> Step {
+        let finished = Step {
+            observation: self.observation(),
+            reward: 0.0,
+            outcome: Some(self.outcome.unwrap_or(Outcome::TimeOver)),
+        };
+        if self.outcome.is_some() {
+            return finished;
+        }
+        let Some(mut world) = self.world.take() else {
+            return finished; // never reset
+        };
+        let action = SteerAction::from_index(action).unwrap_or(SteerAction::Forward);
+        self.steer = self.next_steer(action);
+        world.step_ego(EgoCommand {
+            accel: None,
+            steer_rad: Some(self.steer),
+        });
+        let (reward, outcome) = self.resolve(&mut world);
+        self.world = Some(world);
+        self.outcome = outcome;
+        self.episode_return += reward;
+        self.render(false);
+        Step {
+            observation: self.observation(),
+            reward: reward as f32,
+            outcome,
+        }
+    }
+}
+
+impl Task for RingDriving {
+    type Summary = RingDrivingSummary;
+
+    fn summary(&self) -> RingDrivingSummary {
+        let n = self.steps.max(1) as f64;
+        RingDrivingSummary {
+            outcome: self.outcome.unwrap_or(Outcome::TimeOver),
+            steps: self.steps,
+            episode_return: self.episode_return,
+            mean_angle_deviation_deg: self.angle_sum_deg / n,
+            mean_distance_deviation_m: self.distance_sum_m / n,
+            episode_length_s: self.steps as f64 * self.config.traffic.step_s,
+            mean_speed_kmh: self.speed_sum_mps / n * 3.6,
+        }
+    }
+
+    fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
+        let mut out = constant_baselines::<RingDriving>(&SteerAction::NAMES);
+        let rule: PolicyFactory<Self> = Box::new(|| Box::new(PursuitRule));
+        out.push(("rule: pure pursuit, quantised".into(), rule));
+        out
+    }
+
+    fn scene(&self) -> Option<Scene<'_>> {
+        ego_scene(
+            self.setup.map(),
+            self.world.as_ref()?,
+            self.start_time_s,
+            None,
+        )
+    }
+
+    fn trajectory(&self) -> &[Point] {
+        &self.trajectory
+    }
+}
+
+/// The rule baseline: pure pursuit on the route (privileged: the route and the ego's
+/// exact pose), quantised to the action whose next wheel angle is nearest; an upper
+/// bound for what the three actions can do rather than a fair opponent.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PursuitRule;
+
+impl TaskPolicy<RingDriving> for PursuitRule {
+    fn act(&mut self, envs: &[&RingDriving], _: &[&Observation], actions: &mut Vec<usize>) {
+        actions.clear();
+        actions.extend(envs.iter().map(|e| e.pursuit_action() as usize));
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::tasks::{ConstantAction, TaskResult, run_episodes};
+    use crate::test_maps;
+
+    /// Montlake without other traffic: what steering alone does.
+    fn empty_setup() -> Arc<RingDrivingSetup> {
+        let mut config = RingDrivingConfig::default();
+        config.traffic.max_vehicles = Some(0);
+        RingDrivingSetup::new(Arc::new(test_maps::montlake()), config).unwrap()
+    }
+
+    fn results<P: TaskPolicy<RingDriving>>(
+        setup: &Arc<RingDrivingSetup>,
+        policy: impl Fn() -> P + Sync,
+        episodes: u64,
+    ) -> (TaskResult, Vec<RingDrivingSummary>) {
+        let seeds: Vec<u64> = (0..episodes).collect();
+        let make_env = || {
+            let mut env = RingDriving::new(Arc::clone(setup));
+            env.set_rendering(false);
+            env
+        };
+        let summaries = run_episodes(make_env, policy, &seeds, 8);
+        (TaskResult::of(&summaries), summaries)
+    }
+
+    #[test]
+    fn lane_reward_at_known_deviations() {
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(lane_reward(0.0, 0.0), 2.0));
+        assert!(close(lane_reward(1.0, 0.1), 2.0));
+        assert!(close(lane_reward(0.5, 0.05), 2.0));
+        assert!(close(lane_reward(2.0, 0.2), 1.0));
+        assert!(close(lane_reward(10.0, 1.0), 0.2));
+        assert!(close(lane_reward(-4.0, 0.0), 1.25));
+        assert!(close(lane_reward(90.0, 4.0), 1.0 / 90.0 + 1.0 / 40.0));
+        assert!(close(lane_reward(f64::NAN, 0.0), 1.0));
+        assert!(close(lane_reward(f64::INFINITY, f64::INFINITY), 0.0));
+    }
+
+    #[test]
+    fn the_rule_follows_the_lane_round_the_roundabout() {
+        let setup = empty_setup();
+        let (result, summaries) = results(&setup, || PursuitRule, 40);
+        // Three actions cannot follow every kink of a mini roundabout's mapped lanes: one
+        // of these 40 episodes (seed 2) ends off the road.
+        assert!(result.reaches >= 0.95, "{result:?}");
+        let angle = result.metrics[0].1.unwrap();
+        let distance = result.metrics[1].1.unwrap();
+        assert!(angle < 10.0, "mean angle deviation {angle}°");
+        assert!(distance < 0.3, "mean distance deviation {distance} m");
+        // Episodes last the full 10 s unless the route ended first, never longer.
+        assert!(summaries.iter().all(|s| s.episode_length_s <= 10.0 + 1e-9));
+        assert!(summaries.iter().any(|s| s.steps == 100));
+        // Every step of a clean episode earns at most 2.
+        assert!(
+            summaries
+                .iter()
+                .all(|s| s.episode_return > 0.0 && s.episode_return <= 2.0 * s.steps as f64)
+        );
+    }
+
+    #[test]
+    fn always_forward_left_leaves_the_lane() {
+        let setup = empty_setup();
+        let (result, _) = results(
+            &setup,
+            || ConstantAction(SteerAction::ForwardLeft as usize),
+            40,
+        );
+        assert!(result.off_roads >= 0.9, "{result:?}");
+        assert!(result.metrics[0].1.unwrap() > 15.0, "{result:?}");
+    }
+
+    /// Rewards as bits, outcomes and a hash of every observation over 300 steps of random
+    /// actions, episodes reset as they end.
+    fn trace(setup: &Arc<RingDrivingSetup>, seed: u64) -> (Vec<u32>, Vec<Option<Outcome>>, u64) {
+        let mut env = RingDriving::new(Arc::clone(setup));
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut hash = 0u64;
+        let mut fold = |o: &Observation| {
+            for b in &o.layers {
+                hash = hash.wrapping_mul(31).wrapping_add(u64::from(*b));
+            }
+            for s in &o.scalars {
+                hash = hash.rotate_left(7) ^ u64::from(s.to_bits());
+            }
+        };
+        let mut episode = seed;
+        fold(&env.reset(episode));
+        let (mut rewards, mut outcomes) = (Vec::new(), Vec::new());
+        for _ in 0..300 {
+            let step = env.step(rng.random_range(0..3));
+            fold(&step.observation);
+            rewards.push(step.reward.to_bits());
+            outcomes.push(step.outcome);
+            if step.outcome.is_some() {
+                episode += 1;
+                fold(&env.reset(episode));
+            }
+        }
+        (rewards, outcomes, hash)
+    }
+
+    #[test]
+    fn the_same_seed_gives_the_same_episodes() {
+        let setup = RingDrivingSetup::new(
+            Arc::new(test_maps::montlake()),
+            RingDrivingConfig::default(),
+        )
+        .unwrap();
+        let a = trace(&setup, 3);
+        assert_eq!(a, trace(&setup, 3));
+        assert_ne!(a.0, trace(&setup, 4).0);
+        assert!(a.1.iter().filter(|o| o.is_some()).count() >= 3);
+    }
+
+    #[test]
+    fn observations_have_the_declared_shape_and_odd_inputs_do_not_panic() {
+        let setup = RingDrivingSetup::new(
+            Arc::new(test_maps::montlake()),
+            RingDrivingConfig::default(),
+        )
+        .unwrap();
+        let mut env = RingDriving::new(Arc::clone(&setup));
+        // Stepping before any reset ends at once.
+        assert!(env.step(0).outcome.is_some());
+        let spec = env.observation_spec();
+        let first = env.reset(u64::MAX);
+        assert_eq!(first.layers.len(), spec.layer_len());
+        assert_eq!(first.scalars.len(), spec.scalars);
+        // An unknown action index is driven as forward.
+        let mut last = env.step(usize::MAX);
+        while last.outcome.is_none() {
+            last = env.step(7);
+        }
+        let after = env.step(1);
+        assert_eq!(after.reward, 0.0);
+        assert_eq!(after.outcome, last.outcome);
+    }
+
+    #[test]
+    fn invalid_configs_are_rejected() {
+        let map = Arc::new(test_maps::montlake());
+        let bad = [
+            RingDrivingConfig {
+                episode_s: 0.0,
+                ..RingDrivingConfig::default()
+            },
+            RingDrivingConfig {
+                steer_rad: f64::NAN,
+                ..RingDrivingConfig::default()
+            },
+            RingDrivingConfig {
+                ring_start_probability: 1.5,
+                ..RingDrivingConfig::default()
+            },
+            RingDrivingConfig {
+                start_before_yield_m: (5.0, 1.0),
+                ..RingDrivingConfig::default()
+            },
+        ];
+        for config in bad {
+            assert!(RingDrivingSetup::new(Arc::clone(&map), config).is_err());
+        }
+        let road = test_maps::straight_road(Point::new(0.0, 0.0), Point::new(100.0, 0.0));
+        assert!(RingDrivingSetup::new(Arc::new(road), RingDrivingConfig::default()).is_err());
+    }
+}

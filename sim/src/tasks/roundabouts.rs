@@ -1,0 +1,170 @@
+//! What the tasks on a map's roundabouts share: the roundabouts prepared once per map
+//! (routes and bird's-eye renderer of each), the scene seen from the ego, and the ego's
+//! stacked bird's-eye frames.
+
+use std::sync::Arc;
+
+use maps::Map;
+use rand::Rng;
+
+use crate::error::SimError;
+use crate::render::{BevConfig, BevRenderer, FrameStack};
+use crate::roundabout::{LayoutConfig, RoundaboutLayout};
+use crate::scene::Scene;
+use crate::world::World;
+
+/// Every roundabout of a map that has a route from an entry through the ring to an exit,
+/// with the bird's-eye renderer of its region (read-only, shared by every environment).
+#[derive(Debug)]
+pub struct RoundaboutSet {
+    map: Arc<Map>,
+    roundabouts: Vec<(Arc<RoundaboutLayout>, BevRenderer)>,
+}
+
+impl RoundaboutSet {
+    /// Prepares the usable roundabouts of `map`; fails when there is none.
+    pub fn new(map: Arc<Map>, layout: &LayoutConfig, view: &BevConfig) -> Result<Self, SimError> {
+        let mut roundabouts = Vec::new();
+        let mut problems = Vec::new();
+        for id in map.roundabouts.keys() {
+            match RoundaboutLayout::new(&map, *id, layout) {
+                Ok(layout) => {
+                    let renderer = BevRenderer::new(&map, layout.bounds, view.clone())?;
+                    roundabouts.push((Arc::new(layout), renderer));
+                }
+                Err(e) => problems.push(e.to_string()),
+            }
+        }
+        if roundabouts.is_empty() {
+            return Err(SimError::Map(if problems.is_empty() {
+                "the map has no roundabout".into()
+            } else {
+                problems.join("; ")
+            }));
+        }
+        Ok(RoundaboutSet { map, roundabouts })
+    }
+
+    pub fn map(&self) -> &Arc<Map> {
+        &self.map
+    }
+
+    /// Never zero.
+    pub fn len(&self) -> usize {
+        self.roundabouts.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.roundabouts.is_empty()
+    }
+
+    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
+        self.roundabouts.iter().map(|(l, _)| l)
+    }
+
+    /// Roundabout `i` (clamped to the last one).
+    pub fn layout(&self, i: usize) -> &Arc<RoundaboutLayout> {
+        &self.roundabouts[i.min(self.roundabouts.len() - 1)].0
+    }
+
+    /// The renderer of roundabout `i` (clamped to the last one).
+    pub fn renderer(&self, i: usize) -> &BevRenderer {
+        &self.roundabouts[i.min(self.roundabouts.len() - 1)].1
+    }
+
+    /// A roundabout, one of its usable entries and one of that entry's routes, drawn
+    /// uniformly in that order: `(roundabout, route)`.
+    pub fn draw_route<R: Rng>(&self, rng: &mut R) -> (usize, usize) {
+        let roundabout = pick(rng, self.roundabouts.len());
+        let layout = self.layout(roundabout);
+        let entries: Vec<usize> = layout.usable_entries().collect();
+        // A layout exists only with at least one route, so `entries` is never empty.
+        let entry = entries.get(pick(rng, entries.len())).copied().unwrap_or(0);
+        let routes = &layout.routes_by_entry[entry];
+        let route = routes.get(pick(rng, routes.len())).copied().unwrap_or(0);
+        (roundabout, route)
+    }
+}
+
+/// A uniform index below `n` from one draw (0 when `n` is 0).
+fn pick<R: Rng>(rng: &mut R, n: usize) -> usize {
+    ((rng.random::<f64>() * n as f64) as usize).min(n.saturating_sub(1))
+}
+
+/// The scene of `world` around its ego (None without an ego), times counted from
+/// `start_time_s`; `ego_aggressiveness` is shown on the ego when the task has one.
+pub fn ego_scene<'a>(
+    map: &'a Map,
+    world: &'a World,
+    start_time_s: f64,
+    ego_aggressiveness: Option<f64>,
+) -> Option<Scene<'a>> {
+    let ego = world.ego_index()?;
+    let mut actors = world.actors();
+    actors[ego].aggressiveness = ego_aggressiveness;
+    Some(Scene {
+        map,
+        time_s: world.time_s() - start_time_s,
+        actors,
+        ego,
+        ego_path: world.route(&world.vehicles()[ego]).path.outline(),
+    })
+}
+
+/// The ego's bird's-eye frames of one episode. With rendering off nothing is drawn and
+/// observations carry empty layers (for policies that do not read them).
+#[derive(Debug, Clone)]
+pub struct EgoView {
+    frame: Vec<u8>,
+    stack: FrameStack,
+    rendering: bool,
+}
+
+impl EgoView {
+    pub fn new(config: &BevConfig) -> Self {
+        EgoView {
+            frame: Vec::new(),
+            stack: FrameStack::new(config.frame_len(), config.stack),
+            rendering: true,
+        }
+    }
+
+    pub fn set_rendering(&mut self, on: bool) {
+        self.rendering = on;
+    }
+
+    /// Draws `scene` (nothing without one: the previous frame is kept) and starts a new
+    /// stack with it (`first`, at a reset) or pushes it.
+    pub fn draw(&mut self, renderer: &BevRenderer, scene: Option<Scene<'_>>, first: bool) {
+        if !self.rendering {
+            return;
+        }
+        if let Some(scene) = scene {
+            renderer.render(&scene, &mut self.frame);
+        }
+        if self.frame.len() != renderer.config().frame_len() {
+            // Never drawn (no ego yet): an empty frame of the right size.
+            self.frame.clear();
+            self.frame.resize(renderer.config().frame_len(), 0);
+        }
+        if first {
+            self.stack.reset(&self.frame);
+        } else {
+            self.stack.push(&self.frame);
+        }
+    }
+
+    /// The stacked layers of an observation (empty with rendering off).
+    pub fn layers(&self) -> Vec<u8> {
+        let mut layers = Vec::new();
+        if self.rendering {
+            self.stack.write(&mut layers);
+        }
+        layers
+    }
+
+    /// The newest frame (`[layer, row, column]`, see [`BevConfig::layers`]).
+    pub fn newest(&self) -> &[u8] {
+        self.stack.newest()
+    }
+}
