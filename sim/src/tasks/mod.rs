@@ -6,6 +6,7 @@
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
 
 pub mod insertion;
+pub mod obstacle;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -19,6 +20,7 @@ pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
     RoundaboutInsertion,
 };
+pub use obstacle::{ObstacleAvoidance, ObstacleConfig, ObstacleSetup, ObstacleSummary};
 
 /// A task whose finished episodes can be summarised for evaluation tables.
 pub trait Task: Env + Sized {
@@ -204,7 +206,8 @@ pub fn task_table(rows: &[(String, TaskResult)]) -> String {
         out.push_str(&format!(" {name} |"));
     }
     out.push_str("\n|");
-    out.push_str(&" --- |".repeat(6 + metric_names.len()));
+    // Seven fixed columns (policy to mean return), then the metrics.
+    out.push_str(&" --- |".repeat(7 + metric_names.len()));
     out.push('\n');
     for (policy, r) in rows {
         out.push_str(&format!(
@@ -225,4 +228,26 @@ pub fn task_table(rows: &[(String, TaskResult)]) -> String {
         out.push('\n');
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_rows_have_as_many_cells_as_the_header() {
+        let result = TaskResult {
+            episodes: 2,
+            reaches: 0.5,
+            crashes: 0.5,
+            off_roads: 0.0,
+            time_overs: 0.0,
+            mean_return: 1.0,
+            metrics: vec![("gap m".into(), Some(1.0)), ("stop m".into(), None)],
+        };
+        let table = task_table(&[("rule".into(), result)]);
+        let cells: Vec<usize> = table.lines().map(|l| l.matches('|').count()).collect();
+        assert_eq!(cells.len(), 3);
+        assert!(cells.iter().all(|&c| c == cells[0]), "{table}");
+    }
 }
