@@ -36,7 +36,8 @@
 //!   is). **Normalised** (ours): the main reward as a potential, per step
 //!   (M(d′) − M(d)) / 3000 (a crash or leaving the road sets d′ to the farthest point, so
 //!   it loses all progress), the LiDAR penalty rescaled to [−`danger_per_step`, 0] over
-//!   [0, 40] m, and the stop bonus / 3000: the same shaping, every term O(0.1) per step.
+//!   [0, 40] m, the stop bonus / 3000, and a bonus of 1 on reaching the destination
+//!   (the quadratic is flat there: without it an agent stops just short and times out).
 //! - Termination: Crashed (footprints overlap), OffRoad (the ego's centre beyond a road
 //!   edge), Reached (the ego's centre passes the destination), TimeOver (30 s).
 //! - Metrics: reached without collision, stopping distance (box-to-box gap when the ego
@@ -149,6 +150,10 @@ pub struct NormalisedReward {
     pub scale: f64,
     /// The LiDAR penalty per step at contact (0 at the end of the range).
     pub danger_per_step: f64,
+    /// Added when the destination is reached. The quadratic main reward is flat near the
+    /// destination (stopping 5 m short forgoes 0.3 % of its range), so without this an
+    /// agent learns to stop just before it and let the time run out.
+    pub reach_bonus: f64,
 }
 
 impl Default for NormalisedReward {
@@ -156,6 +161,7 @@ impl Default for NormalisedReward {
         NormalisedReward {
             scale: 3000.0,
             danger_per_step: 0.02,
+            reach_bonus: 1.0,
         }
     }
 }
@@ -273,6 +279,7 @@ impl ObstacleConfig {
                 "normalised.danger_per_step",
                 self.normalised.danger_per_step,
             ),
+            ("normalised.reach_bonus", self.normalised.reach_bonus),
         ];
         for (name, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -689,7 +696,15 @@ impl ObstacleAvoidance {
                 let danger = x.map_or(0.0, |x| {
                     c.normalised.danger_per_step * (lidar_penalty(x) - lidar_penalty(range)) / span
                 });
-                self.potential(after) - self.potential(before) + danger + bonus / c.normalised.scale
+                let reach = if self.outcome == Some(Outcome::Reached) {
+                    c.normalised.reach_bonus
+                } else {
+                    0.0
+                };
+                self.potential(after) - self.potential(before)
+                    + danger
+                    + bonus / c.normalised.scale
+                    + reach
             }
         }
     }
