@@ -343,3 +343,42 @@ fn route_ends_far_from_the_map() {
         assert!(!file.exists());
     }
 }
+
+/// `--device cuda | wgpu` in a build without that backend: one clear error saying how to
+/// rebuild, before any work (no output folder).
+#[test]
+fn a_gpu_this_build_lacks_is_refused_with_the_rebuild_command() {
+    let tmp = tempfile::tempdir().unwrap();
+    let osm = tmp.path().join("small.osm");
+    std::fs::write(&osm, SMALL_OSM).unwrap();
+    for (device, built) in [
+        ("cuda", cfg!(feature = "cuda")),
+        ("wgpu", cfg!(feature = "wgpu")),
+    ] {
+        if built {
+            println!("skipped: this build has {device}");
+            continue;
+        }
+        let out = tmp.path().join(device);
+        let result = run([
+            "--rerun".as_ref(),
+            "off".as_ref(),
+            "--device".as_ref(),
+            device.as_ref(),
+            "map".as_ref(),
+            "import".as_ref(),
+            osm.as_os_str(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ]);
+        assert_eq!(result.status.code(), Some(1));
+        let err = stderr(&result);
+        assert!(
+            err.starts_with(&format!(
+                "error: --device {device}: this build has no {device} support: rebuild with `cargo build --release --features {device}`"
+            )),
+            "{err}"
+        );
+        assert!(!out.exists());
+    }
+}

@@ -7,36 +7,13 @@
 
 mod common;
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use common::{assert_success, entries, pipeline, read_json, stderr};
+use common::{assert_same_files, assert_success, entries, files, pipeline, read_json, stderr};
 
 /// The bundled map every test renders from.
 fn bundled_map() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/osm/northwestern_nu.osm.pbf")
-}
-
-/// Every file under `dir` (relative path -> bytes).
-fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
-        for entry in std::fs::read_dir(dir).unwrap().flatten() {
-            let path = entry.path();
-            if path.is_dir() {
-                walk(root, &path, out);
-            } else {
-                let rel = path
-                    .strip_prefix(root)
-                    .unwrap()
-                    .to_string_lossy()
-                    .into_owned();
-                out.insert(rel, std::fs::read(&path).unwrap());
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(dir, dir, &mut out);
-    out
 }
 
 /// Runs `dataset generate` with `threads` rayon threads.
@@ -276,14 +253,7 @@ fn two_shards_merge_into_the_unsharded_folder() {
         .output()
         .unwrap();
     assert_success(&out, "merge --shards");
-    let (expected, got) = (files(&whole), files(&merged));
-    assert_eq!(
-        expected.keys().collect::<Vec<_>>(),
-        got.keys().collect::<Vec<_>>()
-    );
-    for (path, bytes) in &expected {
-        assert!(got[path] == *bytes, "{path} differs");
-    }
+    assert_same_files(&whole, &merged);
 
     // One shard twice and the other missing: refused, nothing written.
     let bad = tmp.path().join("bad");

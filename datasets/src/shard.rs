@@ -42,31 +42,34 @@ impl Shard {
     }
 }
 
-/// Merges the shards of one run (any order given) into `out_dir` under the card name
-/// `name`: the shards must all be there once, from the same run (card equal but for the
-/// shard record). Copies each item's files (image, label, and the `params.topdown` and
-/// `previews/<id>.png` files when present) and writes the manifest and card.
-pub fn merge_shards(name: &str, shards: &[&Dataset], out_dir: &Path) -> Result<(Vec<Item>, Card)> {
-    let mut ordered: Vec<(Shard, &Dataset)> = Vec::new();
-    for d in shards {
-        let shard = d
-            .card
-            .config
-            .get(SHARD_KEY)
-            .cloned()
-            .and_then(|v| serde_json::from_value::<Shard>(v).ok())
-            .ok_or_else(|| {
-                DatasetError::invalid(
-                    &d.root.join(CARD_FILE),
-                    "is not a shard (no `shard` in its config; made without --shard?)",
-                )
-            })?;
-        ordered.push((shard, d));
+/// The shard record of a card's `config` (or of any JSON object), if it has one.
+pub fn shard_record(config: &serde_json::Value) -> Option<Shard> {
+    config
+        .get(SHARD_KEY)
+        .cloned()
+        .and_then(|v| serde_json::from_value::<Shard>(v).ok())
+}
+
+/// `value` (a JSON object) without its shard record.
+pub fn without_shard(value: &serde_json::Value) -> serde_json::Value {
+    let mut value = value.clone();
+    if let Some(object) = value.as_object_mut() {
+        object.remove(SHARD_KEY);
     }
+    value
+}
+
+/// The shards of one run in index order: each of `0..n` must be there exactly once, all
+/// of the same `n`, any order in.
+pub fn in_order<T>(shards: Vec<(Shard, T)>) -> Result<Vec<(Shard, T)>> {
+    let mut ordered = shards;
     ordered.sort_by_key(|(s, _)| s.index);
     let count = ordered.first().map_or(0, |(s, _)| s.count);
     let indices: Vec<u64> = ordered.iter().map(|(s, _)| s.index).collect();
-    if ordered.iter().any(|(s, _)| s.count != count) || indices != (0..count).collect::<Vec<_>>() {
+    if ordered.is_empty()
+        || ordered.iter().any(|(s, _)| s.count != count)
+        || indices != (0..count).collect::<Vec<_>>()
+    {
         return Err(DatasetError::Config(format!(
             "the shards given are {:?}; merging needs each of 0..{count} of one run exactly once",
             ordered
@@ -75,10 +78,36 @@ pub fn merge_shards(name: &str, shards: &[&Dataset], out_dir: &Path) -> Result<(
                 .collect::<Vec<_>>()
         )));
     }
+    Ok(ordered)
+}
+
+/// Key of the card's `provenance` list that each shard makes on its own (the items an
+/// `--on-error skip` run left out): merging puts the shards' lists one after the other.
+pub const PER_SHARD_LIST: &str = "skipped";
+
+/// Merges the shards of one run (any order given) into `out_dir` under the card name
+/// `name`: the shards must all be there once, from the same run (card equal but for the
+/// shard record and the `provenance.skipped` list). Copies each item's files (image,
+/// label, and the `params.topdown` and `previews/<id>.png` files when present) and writes
+/// the manifest and card. Used for `dataset generate` and `dataset augment` shards.
+pub fn merge_shards(name: &str, shards: &[&Dataset], out_dir: &Path) -> Result<(Vec<Item>, Card)> {
+    let mut found: Vec<(Shard, &Dataset)> = Vec::new();
+    for d in shards {
+        let shard = shard_record(&d.card.config).ok_or_else(|| {
+            DatasetError::invalid(
+                &d.root.join(CARD_FILE),
+                "is not a shard (no `shard` in its config; made without --shard?)",
+            )
+        })?;
+        found.push((shard, d));
+    }
+    let ordered = in_order(found)?;
+    // The card of the unsharded run, the name and the per-shard list aside.
     let unsharded = |card: &Card| {
         let mut card = card.clone();
-        if let Some(config) = card.config.as_object_mut() {
-            config.remove(SHARD_KEY);
+        card.config = without_shard(&card.config);
+        if let Some(provenance) = card.provenance.as_object_mut() {
+            provenance.remove(PER_SHARD_LIST);
         }
         card.name.clear();
         card
@@ -97,7 +126,18 @@ pub fn merge_shards(name: &str, shards: &[&Dataset], out_dir: &Path) -> Result<(
     }
 
     let mut items = Vec::new();
+    let mut listed: Option<Vec<serde_json::Value>> = None;
     for (_, d) in &ordered {
+        if let Some(list) = d
+            .card
+            .provenance
+            .get(PER_SHARD_LIST)
+            .and_then(|v| v.as_array())
+        {
+            listed
+                .get_or_insert_with(Vec::new)
+                .extend(list.iter().cloned());
+        }
         for item in &d.items {
             let mut files = vec![item.image.clone(), item.label.clone()];
             if let Some(top) = item.params.get("topdown").and_then(|v| v.as_str()) {
@@ -120,6 +160,9 @@ pub fn merge_shards(name: &str, shards: &[&Dataset], out_dir: &Path) -> Result<(
     }
     let mut card = first;
     card.name = name.to_owned();
+    if let (Some(list), Some(provenance)) = (listed, card.provenance.as_object_mut()) {
+        provenance.insert(PER_SHARD_LIST.to_owned(), serde_json::Value::Array(list));
+    }
     write_dataset_files(out_dir, &card, &items)?;
     Ok((items, card))
 }
@@ -143,5 +186,32 @@ mod tests {
             }
             assert_eq!(next, total);
         }
+    }
+
+    #[test]
+    fn shards_are_put_in_order_and_must_all_be_there_once() {
+        let s = |index, count| Shard { index, count };
+        let ordered = in_order(vec![(s(2, 3), 'c'), (s(0, 3), 'a'), (s(1, 3), 'b')]);
+        assert_eq!(
+            ordered
+                .ok()
+                .map(|v| v.into_iter().map(|(_, c)| c).collect::<String>()),
+            Some("abc".to_owned())
+        );
+        for bad in [
+            vec![(s(0, 3), 'a'), (s(1, 3), 'b')],
+            vec![(s(0, 2), 'a'), (s(0, 2), 'b')],
+            vec![(s(0, 2), 'a'), (s(1, 3), 'b')],
+            vec![],
+        ] {
+            assert!(
+                in_order(bad.clone()).is_err_and(|e| e.to_string().contains("exactly once")),
+                "{bad:?}"
+            );
+        }
+        let record = serde_json::json!({"count": 9, "shard": {"index": 1, "count": 2}});
+        assert_eq!(shard_record(&record), Some(s(1, 2)));
+        assert_eq!(without_shard(&record), serde_json::json!({"count": 9}));
+        assert_eq!(shard_record(&without_shard(&record)), None);
     }
 }

@@ -41,7 +41,7 @@ impl Default for BcConfig {
 }
 
 /// What a run did.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BcSummary {
     pub samples: usize,
     pub go_share: f64,

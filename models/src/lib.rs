@@ -13,7 +13,8 @@
 //! - [`policy`]: a trained Q-network as a [`sim::baselines::Policy`] for the evaluation harness.
 //!
 //! Backend: burn's `flex` CPU backend by default ([`cpu_device`]); the `cuda` and `wgpu`
-//! features add GPU backends.
+//! features add GPU backends, chosen at run time with [`device`] (burn's `Device` is one
+//! type whatever the backend, so the networks need no backend type parameter).
 
 pub mod bc;
 pub mod dqn;
@@ -34,4 +35,85 @@ pub use error::ModelError;
 /// The default device: burn's flex CPU backend.
 pub fn cpu_device() -> burn::tensor::Device {
     burn::tensor::Device::flex()
+}
+
+/// Where the networks run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DeviceChoice {
+    /// burn's flex CPU backend (every build).
+    #[default]
+    Cpu,
+    /// The first CUDA GPU (builds with the `cuda` feature).
+    Cuda,
+    /// The default wgpu adapter: Vulkan, Metal or DX12 (builds with the `wgpu` feature).
+    Wgpu,
+}
+
+impl DeviceChoice {
+    /// The cargo feature that brings the backend in (`None` for the CPU).
+    pub fn feature(self) -> Option<&'static str> {
+        match self {
+            DeviceChoice::Cpu => None,
+            DeviceChoice::Cuda => Some("cuda"),
+            DeviceChoice::Wgpu => Some("wgpu"),
+        }
+    }
+
+    /// Whether this build has the backend.
+    pub fn compiled_in(self) -> bool {
+        match self {
+            DeviceChoice::Cpu => true,
+            DeviceChoice::Cuda => cfg!(feature = "cuda"),
+            DeviceChoice::Wgpu => cfg!(feature = "wgpu"),
+        }
+    }
+}
+
+/// A device was asked for whose backend this build lacks.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("this build has no {feature} support")]
+pub struct MissingBackend {
+    /// The cargo feature that brings it in.
+    pub feature: &'static str,
+}
+
+/// The burn device of `choice`, or [`MissingBackend`] when this build was made without the
+/// backend's feature. A GPU device is opened lazily, by the first tensor on it.
+pub fn device(choice: DeviceChoice) -> Result<burn::tensor::Device, MissingBackend> {
+    match choice {
+        DeviceChoice::Cpu => Ok(cpu_device()),
+        #[cfg(feature = "cuda")]
+        DeviceChoice::Cuda => Ok(burn::tensor::Device::cuda(0)),
+        #[cfg(feature = "wgpu")]
+        DeviceChoice::Wgpu => Ok(burn::tensor::Device::wgpu(
+            burn::tensor::DeviceKind::DefaultDevice,
+        )),
+        #[allow(unreachable_patterns)]
+        other => Err(MissingBackend {
+            feature: other.feature().unwrap_or("cpu"),
+        }),
+    }
+}
+
+#[cfg(test)]
+mod device_tests {
+    use super::*;
+
+    #[test]
+    fn the_cpu_is_always_there_and_a_missing_backend_says_which_feature() {
+        assert!(device(DeviceChoice::Cpu).is_ok());
+        for choice in [DeviceChoice::Cuda, DeviceChoice::Wgpu] {
+            match device(choice) {
+                Ok(_) => assert!(choice.compiled_in()),
+                Err(e) => {
+                    assert!(!choice.compiled_in());
+                    let feature = choice.feature().unwrap_or_default();
+                    assert!(
+                        e.to_string().contains(&format!("no {feature} support")),
+                        "{e}"
+                    );
+                }
+            }
+        }
+    }
 }

@@ -48,8 +48,35 @@ pub struct Cli {
     #[arg(long, global = true, value_name = "MODE", default_value = "save", value_parser = parse_rerun)]
     pub rerun: RerunMode,
 
+    /// Where networks train and run (segmenter train / eval / predict / bench, agent
+    /// train): `cpu`, or a GPU through burn's `cuda` or `wgpu` backend in a build with that
+    /// cargo feature (docs/gpu.md).
+    #[arg(long, global = true, value_enum, default_value = "cpu")]
+    pub device: DeviceArg,
+
     #[command(subcommand)]
     pub command: Group,
+}
+
+/// `--device`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DeviceArg {
+    /// burn's flex backend on the CPU (every build).
+    Cpu,
+    /// The first CUDA GPU (a build with `--features cuda`).
+    Cuda,
+    /// The default wgpu adapter: Vulkan, Metal or DX12 (a build with `--features wgpu`).
+    Wgpu,
+}
+
+impl From<DeviceArg> for models::DeviceChoice {
+    fn from(d: DeviceArg) -> Self {
+        match d {
+            DeviceArg::Cpu => models::DeviceChoice::Cpu,
+            DeviceArg::Cuda => models::DeviceChoice::Cuda,
+            DeviceArg::Wgpu => models::DeviceChoice::Wgpu,
+        }
+    }
 }
 
 impl Cli {

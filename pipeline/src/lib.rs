@@ -33,6 +33,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         ui: &ui,
         recording: None,
     };
+    // A GPU this build cannot use is refused before any work, whatever the command.
+    if cli.device != cli::DeviceArg::Cpu {
+        ctx.device()?;
+    }
     dispatch(&ctx)
 }
 

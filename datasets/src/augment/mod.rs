@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{DatasetError, OnError, Result, Skipped, apply_policy};
 use crate::image_io::{encode_label_png, encode_rgb_png, read_class_label, read_rgb, write_bytes};
 use crate::manifest::{Card, Dataset, Item, write_dataset_files};
+use crate::shard::{SHARD_KEY, Shard};
 use geometry::Warp;
 
 /// One concrete transform, as stored in `params.ops`.
@@ -414,6 +415,9 @@ pub struct AugmentOptions {
     pub include_originals: bool,
     pub seed: u64,
     pub on_error: OnError,
+    /// Augment only this shard of the input's items (recorded in the card's config); the
+    /// shards merge with [`crate::shard::merge_shards`].
+    pub shard: Option<Shard>,
 }
 
 /// The `params` of an augmented item.
@@ -494,15 +498,18 @@ fn augment_item(
     Ok(outputs)
 }
 
-/// Augments every item of `dataset` into `out_dir` (which must exist), in parallel; the
-/// bytes do not depend on the thread count.
+/// Augments every item of `dataset` (or those of `opts.shard`) into `out_dir` (which must
+/// exist), in parallel; the bytes do not depend on the thread count. Each item's draws are
+/// seeded by its index in the input, so a shard makes the same items as the whole run.
 pub fn augment_dataset(
     dataset: &Dataset,
     opts: &AugmentOptions,
     out_dir: &Path,
 ) -> Result<AugmentOutcome> {
     opts.config.validate().map_err(DatasetError::Config)?;
-    let results: Vec<(String, Result<Vec<Item>>)> = (0..dataset.items.len())
+    let all = dataset.items.len() as u64;
+    let indices = opts.shard.map_or(0..all, |shard| shard.range(all));
+    let results: Vec<(String, Result<Vec<Item>>)> = (indices.start as usize..indices.end as usize)
         .into_par_iter()
         .map(|i| {
             (
@@ -513,7 +520,10 @@ pub fn augment_dataset(
         .collect();
     let (made, skipped) = apply_policy(results, opts.on_error)?;
     let items: Vec<Item> = made.into_iter().flatten().collect();
-    if items.is_empty() {
+    // A shard may make nothing (fewer items than shards, or every item of its share
+    // skipped). The whole run's "nothing could be augmented" error is not repeated when
+    // the shards are merged.
+    if items.is_empty() && opts.shard.is_none() {
         return Err(DatasetError::invalid(
             &dataset.root,
             format!("no item could be augmented ({} skipped)", skipped.len()),
@@ -537,12 +547,18 @@ pub fn augment_dataset(
             // Items left out under --on-error skip, with why: the dataset says what it lacks.
             "skipped": skipped,
         }),
-        serde_json::json!({
-            "transforms": opts.config,
-            "copies": opts.copies,
-            "include_originals": opts.include_originals,
-            "on_error": opts.on_error,
-        }),
+        {
+            let mut config = serde_json::json!({
+                "transforms": opts.config,
+                "copies": opts.copies,
+                "include_originals": opts.include_originals,
+                "on_error": opts.on_error,
+            });
+            if let (Some(shard), Some(object)) = (opts.shard, config.as_object_mut()) {
+                object.insert(SHARD_KEY.to_owned(), serde_json::json!(shard));
+            }
+            config
+        },
         opts.seed,
     );
     write_dataset_files(out_dir, &card, &items)?;
@@ -648,6 +664,7 @@ mod tests {
             include_originals: true,
             seed: 11,
             on_error: OnError::Fail,
+            shard: None,
         };
         let mut outputs = Vec::new();
         for threads in [1, 2] {
@@ -716,6 +733,7 @@ mod tests {
             include_originals: false,
             seed: 0,
             on_error: OnError::Fail,
+            shard: None,
         };
         let out = tmp()?;
         let err = augment_dataset(&dataset, &opts, out.path())
@@ -733,6 +751,27 @@ mod tests {
         assert_eq!(outcome.skipped[0].id, "s1");
         let card = crate::manifest::read_card(&out.path().join(crate::manifest::CARD_FILE))?;
         assert_eq!(card.provenance["skipped"][0]["id"], "s1");
+
+        // In three shards (s1, the broken one, alone in shard 1), merged: the same manifest
+        // and card, the skipped list included.
+        let mut shards = Vec::new();
+        for index in 0..3 {
+            let dir = tmp()?;
+            opts.shard = Some(Shard { index, count: 3 });
+            augment_dataset(&dataset, &opts, dir.path())?;
+            shards.push((Dataset::open(dir.path())?, dir));
+        }
+        assert!(shards[1].0.items.is_empty());
+        let merged = tmp()?;
+        let refs: Vec<&Dataset> = shards.iter().rev().map(|(d, _)| d).collect();
+        crate::shard::merge_shards("aug", &refs, merged.path())?;
+        for file in [crate::manifest::CARD_FILE, crate::manifest::MANIFEST_FILE] {
+            assert_eq!(
+                read(&merged.path().join(file))?,
+                read(&out.path().join(file))?,
+                "{file}"
+            );
+        }
         Ok(())
     }
 

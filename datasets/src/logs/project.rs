@@ -18,6 +18,7 @@ use super::convert::OBJECTS_TOPIC;
 use super::decode::{Decoded, DecodedLog};
 use super::noise::{NoiseConfig, bend_path, perturb_actors};
 use super::scenes::actors_from_detections;
+use crate::shard::Shard;
 
 /// Least distance between the ego path's points, m.
 const PATH_SPACING_M: f64 = 1.0;
@@ -82,6 +83,20 @@ pub fn project(
     ego: u32,
     noise: &NoiseConfig,
 ) -> (Vec<ProjectedFrame>, Vec<u8>) {
+    project_shard(map, renderer, frames, ego, noise, None)
+}
+
+/// [`project`], or only the ego's frames of `shard` (its share of the frames in which `ego`
+/// appears, in order): the path, the speeds and the noise come from the whole log, so the
+/// shards' frames put one after the other are [`project`]'s, byte for byte.
+pub fn project_shard(
+    map: &maps::Map,
+    renderer: &BevRenderer,
+    frames: &[LogFrame],
+    ego: u32,
+    noise: &NoiseConfig,
+    shard: Option<Shard>,
+) -> (Vec<ProjectedFrame>, Vec<u8>) {
     // The ego's track: (log frame, time, actor index).
     let track: Vec<(usize, u64, usize)> = frames
         .iter()
@@ -115,7 +130,9 @@ pub fn project(
             .collect::<Vec<_>>(),
     );
     let frame_len = renderer.config().frame_len();
-    let results: Vec<(ProjectedFrame, Vec<u8>)> = (0..track.len())
+    let all = track.len() as u64;
+    let part = shard.map_or(0..all, |s| s.range(all));
+    let results: Vec<(ProjectedFrame, Vec<u8>)> = (part.start as usize..part.end as usize)
         .into_par_iter()
         .map_init(Vec::new, |out, j| {
             let (k, time_ns, i) = track[j];

@@ -36,6 +36,20 @@ impl Context<'_> {
         }
     }
 
+    /// The burn device of `--device`; a clear error when this build lacks its backend.
+    pub fn device(&self) -> anyhow::Result<burn::tensor::Device> {
+        models::device(self.cli.device.into()).map_err(|e| {
+            crate::error::CliError::new(
+                format!(
+                    "--device {0}: {e}: rebuild with `cargo build --release --features {0}`",
+                    e.feature
+                ),
+                "or use --device cpu",
+            )
+            .into()
+        })
+    }
+
     /// An output path: relative ones are placed in `--run-dir` when it is given.
     pub fn output_path(&self, p: &Path) -> PathBuf {
         match &self.cli.run_dir {

@@ -10,10 +10,16 @@
 //! four frames stacked) and its scalars. Caution counts as wait, as in the Parma study.
 //! Agreement is over the go and wait frames; ambiguous and queued frames are counted, not
 //! scored.
+//!
+//! With `--shard i/n` only shard `i`'s share of the approaches (numbered over the logs in
+//! the order given) is evaluated, and the folder holds `replay_shard.json`: the settings
+//! and the counts (frames, confusion matrices, matches per log, go delays in approach
+//! order), which `pipeline replay merge --shards` adds up into the unsharded run's
+//! `replay.json` and `replay.md`.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
@@ -22,10 +28,11 @@ use datasets::logs::decode::read_decoded;
 use datasets::logs::noise::NoiseConfig;
 use datasets::logs::project::{LogFrame, log_frames, project};
 use datasets::logs::source::{Log, ReadOptions};
+use datasets::shard::{Shard, in_order};
 use models::bc::{self, BcConfig};
 use models::dqn::{greedy_action, load_network, read_agent_description};
 use models::policy::QPolicy;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sim::render::{BevConfig, BevRenderer, FrameStack};
 use sim::tasks::insertion::{Action, observation_scalars, observation_spec};
 use sim::{Observation, ObservationSpec};
@@ -39,7 +46,9 @@ use crate::output::{AtomicDir, Markers, write_file_atomic};
 
 pub const REPLAY_JSON: &str = "replay.json";
 pub const REPLAY_MD: &str = "replay.md";
-const MARKERS: Markers = &[REPLAY_JSON];
+/// A shard's counts (`replay eval --shard i/n`).
+pub const REPLAY_SHARD_JSON: &str = "replay_shard.json";
+const MARKERS: Markers = &[REPLAY_JSON, REPLAY_SHARD_JSON];
 /// Vehicles this close to the ring's centre line (in distance from the roundabout's
 /// centre) count as circulating, m.
 const RING_HALF_WIDTH_M: f64 = 4.0;
@@ -49,6 +58,21 @@ pub enum ReplayCommand {
     /// Agreement of policies (an agent, the gap rules, always go) with real drivers' go /
     /// wait decisions at roundabout entries, frame by frame.
     Eval(EvalArgs),
+    /// Add up the shards of one `replay eval --shard i/n` run into its replay.json and
+    /// replay.md (the unsharded run's, byte for byte).
+    Merge(MergeArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct MergeArgs {
+    /// The shard folders of one `replay eval --shard i/n` run, each of 0..n once (any
+    /// order).
+    #[arg(long, value_name = "DIR", num_args = 1.., required = true)]
+    pub shards: Vec<PathBuf>,
+
+    /// Output folder: replay.json and replay.md (written atomically).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
 }
 
 #[derive(Debug, Args)]
@@ -85,36 +109,37 @@ pub struct EvalArgs {
     /// Output folder: replay.json and replay.md (written atomically).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+
+    /// Evaluate only shard i of n of the approaches (for running across machines); the
+    /// folder gets replay_shard.json, which `pipeline replay merge --shards` adds up
+    /// (docs/scaling.md). Each shard trains behaviour cloning itself (the same network).
+    #[arg(long, value_name = "i/n", value_parser = Shard::parse)]
+    pub shard: Option<Shard>,
 }
 
 pub fn run(ctx: &Context<'_>, command: &ReplayCommand) -> Result<()> {
     match command {
         ReplayCommand::Eval(args) => eval(ctx, args),
+        ReplayCommand::Merge(args) => merge(ctx, args),
     }
 }
 
-/// How one policy did.
-#[derive(Debug, Default, Clone, Serialize)]
-struct Score {
+/// What one policy did, as counts that shards add up.
+#[derive(Debug, Default, Clone, PartialEq, Serialize, Deserialize)]
+struct Tally {
     policy: String,
-    /// Of the go and wait frames, the share where the policy decided as the driver did.
-    agreement: f64,
     /// `confusion[human][policy]`, human and policy each `go` or `wait`.
     confusion: BTreeMap<String, BTreeMap<String, u64>>,
-    /// Per log: agreement.
-    per_log: BTreeMap<String, f64>,
-    /// Over approaches where the driver stopped: the policy's first go minus the driver's
-    /// (first go-labelled frame), s; positive = the policy went later.
-    mean_go_delay_s: Option<f64>,
-    #[serde(skip)]
+    /// Per log: (frames where the policy decided as the driver did, go and wait frames).
     matches_per_log: BTreeMap<String, (u64, u64)>,
-    #[serde(skip)]
+    /// Per approach with a stop (in approach order): the policy's first go minus the
+    /// driver's, s.
     delays: Vec<f64>,
 }
 
-impl Score {
-    fn new(policy: String) -> Score {
-        Score {
+impl Tally {
+    fn new(policy: String) -> Tally {
+        Tally {
             policy,
             ..Default::default()
         }
@@ -138,20 +163,117 @@ impl Score {
         e.1 += 1;
     }
 
-    fn finish(&mut self) {
+    /// Adds a later shard's counts (its delays after these).
+    fn absorb(&mut self, other: &Tally) {
+        for (h, row) in &other.confusion {
+            for (p, n) in row {
+                *self
+                    .confusion
+                    .entry(h.clone())
+                    .or_default()
+                    .entry(p.clone())
+                    .or_default() += n;
+            }
+        }
+        for (log, (m, n)) in &other.matches_per_log {
+            let e = self.matches_per_log.entry(log.clone()).or_default();
+            e.0 += m;
+            e.1 += n;
+        }
+        self.delays.extend_from_slice(&other.delays);
+    }
+
+    /// The rates.
+    fn score(self) -> Score {
         let (m, n) = self
             .matches_per_log
             .values()
             .fold((0, 0), |(a, b), (m, n)| (a + m, b + n));
-        self.agreement = m as f64 / n.max(1) as f64;
-        self.per_log = self
-            .matches_per_log
-            .iter()
-            .map(|(k, (m, n))| (k.clone(), *m as f64 / (*n).max(1) as f64))
-            .collect();
-        self.mean_go_delay_s = (!self.delays.is_empty())
-            .then(|| self.delays.iter().sum::<f64>() / self.delays.len() as f64);
+        Score {
+            policy: self.policy,
+            agreement: m as f64 / n.max(1) as f64,
+            confusion: self.confusion,
+            per_log: self
+                .matches_per_log
+                .iter()
+                .map(|(k, (m, n))| (k.clone(), *m as f64 / (*n).max(1) as f64))
+                .collect(),
+            mean_go_delay_s: (!self.delays.is_empty())
+                .then(|| self.delays.iter().sum::<f64>() / self.delays.len() as f64),
+        }
     }
+}
+
+/// How one policy did.
+#[derive(Debug, Default, Clone, Serialize)]
+struct Score {
+    policy: String,
+    /// Of the go and wait frames, the share where the policy decided as the driver did.
+    agreement: f64,
+    /// `confusion[human][policy]`, human and policy each `go` or `wait`.
+    confusion: BTreeMap<String, BTreeMap<String, u64>>,
+    /// Per log: agreement.
+    per_log: BTreeMap<String, f64>,
+    /// Over approaches where the driver stopped: the policy's first go minus the driver's
+    /// (first go-labelled frame), s; positive = the policy went later.
+    mean_go_delay_s: Option<f64>,
+}
+
+/// What a run evaluated, the same in every shard of it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Settings {
+    logs: Vec<PathBuf>,
+    map: PathBuf,
+    agent: Option<PathBuf>,
+    /// Logs behaviour cloning learnt from.
+    train_logs: Vec<PathBuf>,
+    labels: LabelConfig,
+    behaviour_cloning: Option<bc::BcSummary>,
+}
+
+/// The counts of a run or of a shard of it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Counts {
+    approaches: usize,
+    approaches_with_a_stop: usize,
+    frames: BTreeMap<String, u64>,
+    policies: Vec<Tally>,
+}
+
+impl Counts {
+    /// Adds a later shard's counts; the policies must be the same.
+    fn absorb(&mut self, other: &Counts) -> std::result::Result<(), String> {
+        let names = |c: &Counts| {
+            c.policies
+                .iter()
+                .map(|t| t.policy.clone())
+                .collect::<Vec<_>>()
+        };
+        if names(self) != names(other) {
+            return Err(format!(
+                "other policies ({:?}) than shard 0 ({:?})",
+                names(other),
+                names(self)
+            ));
+        }
+        self.approaches += other.approaches;
+        self.approaches_with_a_stop += other.approaches_with_a_stop;
+        for (k, n) in &other.frames {
+            *self.frames.entry(k.clone()).or_default() += n;
+        }
+        for (mine, theirs) in self.policies.iter_mut().zip(&other.policies) {
+            mine.absorb(theirs);
+        }
+        Ok(())
+    }
+}
+
+/// `replay_shard.json`.
+#[derive(Debug, Serialize, Deserialize)]
+struct ShardFile {
+    shard: Shard,
+    settings: Settings,
+    counts: Counts,
 }
 
 #[derive(Debug, Serialize)]
@@ -167,6 +289,23 @@ struct Report {
     approaches_with_a_stop: usize,
     frames: BTreeMap<String, u64>,
     policies: Vec<Score>,
+}
+
+impl Report {
+    fn new(settings: Settings, counts: Counts) -> Report {
+        Report {
+            logs: settings.logs,
+            map: settings.map,
+            agent: settings.agent,
+            train_logs: settings.train_logs,
+            labels: settings.labels,
+            behaviour_cloning: settings.behaviour_cloning,
+            approaches: counts.approaches,
+            approaches_with_a_stop: counts.approaches_with_a_stop,
+            frames: counts.frames,
+            policies: counts.policies.into_iter().map(Tally::score).collect(),
+        }
+    }
 }
 
 /// What the policies that read the bird's-eye view (the agent, behaviour cloning) see.
@@ -303,7 +442,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         Some(dir) => {
             progress.step(&format!("loading the agent {}", dir.display()));
             let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
-            let task = read_task(dir)?;
+            let config = read_task(dir)?.insertion_config(&dir.join(super::agent::TASK_FILE))?;
             let network =
                 load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;
             let policy = QPolicy::new(
@@ -314,8 +453,8 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             );
             (
                 Some(policy),
-                task.config.observation.clone(),
-                task.config.speed_scale_mps,
+                config.observation.clone(),
+                config.speed_scale_mps,
             )
         }
     };
@@ -384,12 +523,12 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
 
     // The rules, then always go (no threshold), then the learnt policies.
     let thresholds = [Some(25.0), Some(20.0), Some(15.0), Some(10.0), None];
-    let mut scores: Vec<Score> = thresholds
+    let mut scores: Vec<Tally> = thresholds
         .iter()
-        .map(|t| Score::new(t.map_or("always go".into(), |t| format!("rule {t} m"))))
+        .map(|t| Tally::new(t.map_or("always go".into(), |t| format!("rule {t} m"))))
         .collect();
     let bc_score = bc.as_ref().map(|_| {
-        scores.push(Score::new("behaviour cloning".into()));
+        scores.push(Tally::new("behaviour cloning".into()));
         scores.len() - 1
     });
     let levels = if agent.is_some() {
@@ -401,90 +540,125 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     scores.extend(
         levels
             .iter()
-            .map(|a| Score::new(format!("agent, aggressiveness {a}"))),
+            .map(|a| Tally::new(format!("agent, aggressiveness {a}"))),
     );
     let mut frame_counts: BTreeMap<String, u64> = BTreeMap::new();
     let (mut n_approaches, mut n_stopped) = (0, 0);
 
+    // Every log first: a shard's approaches are numbered over all of them.
+    let mut logs = Vec::with_capacity(args.logs.len());
     for path in &args.logs {
         progress.step(&format!("reading {}", path.display()));
         let log = read_log(&map, path, &labels)?;
-        n_approaches += log.approaches.len();
-        n_stopped += log.approaches.iter().filter(|a| a.stopped).count();
         progress.step(&format!(
             "{}: {} approaches",
             log.name,
             log.approaches.len()
         ));
-        for approach in &log.approaches {
-            for l in &approach.labels {
-                *frame_counts
-                    .entry(format!("{l:?}").to_lowercase())
-                    .or_default() += 1;
-            }
-            let nearest: Vec<f64> = approach
-                .frames
+        logs.push(log);
+    }
+    let total: u64 = logs.iter().map(|l| l.approaches.len() as u64).sum();
+    let part = args.shard.map_or(0..total, |s| s.range(total));
+    let numbered = logs
+        .iter()
+        .flat_map(|log| log.approaches.iter().map(move |a| (log, a)))
+        .zip(0u64..);
+    for ((log, approach), _) in numbered.filter(|(_, index)| part.contains(index)) {
+        n_approaches += 1;
+        n_stopped += usize::from(approach.stopped);
+        for l in &approach.labels {
+            *frame_counts
+                .entry(format!("{l:?}").to_lowercase())
+                .or_default() += 1;
+        }
+        let nearest: Vec<f64> = approach
+            .frames
+            .iter()
+            .map(|&k| nearest_circulating(&map, &log.frames[k], approach.track))
+            .collect();
+        for (score, threshold) in scores.iter_mut().zip(thresholds) {
+            let goes: Vec<bool> = nearest
                 .iter()
-                .map(|&k| nearest_circulating(&map, &log.frames[k], approach.track))
+                .map(|near| threshold.is_none_or(|t| *near > t))
                 .collect();
-            for (score, threshold) in scores.iter_mut().zip(thresholds) {
-                let goes: Vec<bool> = nearest
-                    .iter()
-                    .map(|near| threshold.is_none_or(|t| *near > t))
-                    .collect();
-                score_approach(score, &log.name, approach, &log.frames, &goes);
-            }
-            if bc.is_none() && agent.is_none() {
-                continue;
-            }
-            let stacks = views.stacks(&map, &log.frames, approach);
-            // Behaviour cloning, on each frame as it is.
-            if let (Some((network, _)), Some(i)) = (&bc, bc_score) {
-                let observations: Vec<Observation> = stacks
-                    .iter()
-                    .map(|(stack, speed)| {
-                        views.observation(stack.clone(), *speed, BC_AGGRESSIVENESS, None)
-                    })
-                    .collect();
-                let goes = bc::predict(network, &observations, &views.spec(), &device);
-                score_approach(&mut scores[i], &log.name, approach, &log.frames, &goes);
-            }
-            // The agent, once per aggressiveness level.
-            if let Some(policy) = &agent {
-                for (level, score) in levels.iter().zip(&mut scores[first_agent_score..]) {
-                    let mut last = Action::Permitted;
-                    let mut goes = Vec::new();
-                    for (stack, speed) in &stacks {
-                        let observation =
-                            views.observation(stack.clone(), *speed, *level, Some(last));
-                        let q = policy.q_values(&[&observation]);
-                        last =
-                            Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
-                        goes.push(last == Action::Permitted);
-                    }
-                    score_approach(score, &log.name, approach, &log.frames, &goes);
+            score_approach(score, &log.name, approach, &log.frames, &goes);
+        }
+        if bc.is_none() && agent.is_none() {
+            continue;
+        }
+        let stacks = views.stacks(&map, &log.frames, approach);
+        // Behaviour cloning, on each frame as it is.
+        if let (Some((network, _)), Some(i)) = (&bc, bc_score) {
+            let observations: Vec<Observation> = stacks
+                .iter()
+                .map(|(stack, speed)| {
+                    views.observation(stack.clone(), *speed, BC_AGGRESSIVENESS, None)
+                })
+                .collect();
+            let goes = bc::predict(network, &observations, &views.spec(), &device);
+            score_approach(&mut scores[i], &log.name, approach, &log.frames, &goes);
+        }
+        // The agent, once per aggressiveness level.
+        if let Some(policy) = &agent {
+            for (level, score) in levels.iter().zip(&mut scores[first_agent_score..]) {
+                let mut last = Action::Permitted;
+                let mut goes = Vec::new();
+                for (stack, speed) in &stacks {
+                    let observation = views.observation(stack.clone(), *speed, *level, Some(last));
+                    let q = policy.q_values(&[&observation]);
+                    last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
+                    goes.push(last == Action::Permitted);
                 }
+                score_approach(score, &log.name, approach, &log.frames, &goes);
             }
         }
     }
-    for s in &mut scores {
-        s.finish();
-    }
-    let report = Report {
+    let settings = Settings {
         logs: args.logs.clone(),
         train_logs: args.train_logs.clone(),
         map: args.map.clone(),
         agent: args.agent.clone(),
         labels,
         behaviour_cloning: bc.map(|(_, summary)| summary),
+    };
+    let counts = Counts {
         approaches: n_approaches,
         approaches_with_a_stop: n_stopped,
         frames: frame_counts,
         policies: scores,
     };
-    let md = markdown(&report);
-    let dir = AtomicDir::create(&out, MARKERS)?;
-    write_json(&dir.path().join(REPLAY_JSON), &report)?;
+    drop(progress);
+    match args.shard {
+        None => write_report(ctx, &out, &Report::new(settings, counts)),
+        Some(shard) => {
+            let dir = AtomicDir::create(&out, MARKERS)?;
+            write_json(
+                &dir.path().join(REPLAY_SHARD_JSON),
+                &ShardFile {
+                    shard,
+                    settings,
+                    counts,
+                },
+            )?;
+            let dest = dir.commit()?;
+            ctx.ui.result(&format!(
+                "shard {}/{}: approaches {}..{} of {total}; wrote {}",
+                shard.index,
+                shard.count,
+                part.start,
+                part.end,
+                dest.display()
+            ));
+            Ok(())
+        }
+    }
+}
+
+/// Writes replay.json, replay.md and the recording (the table) into `out`, atomically.
+fn write_report(ctx: &Context<'_>, out: &Path, report: &Report) -> Result<()> {
+    let md = markdown(report);
+    let dir = AtomicDir::create(out, MARKERS)?;
+    write_json(&dir.path().join(REPLAY_JSON), report)?;
     write_file_atomic(&dir.path().join(REPLAY_MD), md.as_bytes())?;
     let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream() {
@@ -501,15 +675,55 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     }
     recording.finish()?;
     let dest = dir.commit()?;
-    drop(progress);
     ctx.ui.result(&md);
     ctx.ui.info(&format!("wrote {}", dest.display()));
     Ok(())
 }
 
+/// `replay merge --shards`: the shards' counts added up, in shard order.
+fn merge(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
+    let out = ctx.output_path(&args.out);
+    AtomicDir::check_destination(&out, MARKERS)?;
+    let hint = "give the shard folders of one `pipeline replay eval --shard i/n` run";
+    let mut found = Vec::with_capacity(args.shards.len());
+    for dir in &args.shards {
+        let path = dir.join(REPLAY_SHARD_JSON);
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| CliError::file(&path, format!("cannot read: {e}"), hint))?;
+        let file: ShardFile = serde_json::from_str(&text)
+            .map_err(|e| CliError::file(&path, format!("not a replay shard: {e}"), hint))?;
+        found.push((file.shard, (path, file)));
+    }
+    let ordered = in_order(found).map_err(|e| CliError::new(e.to_string(), hint))?;
+    let mut ordered = ordered.into_iter();
+    let Some((_, (_, first))) = ordered.next() else {
+        return Err(CliError::new("no shard given", hint).into());
+    };
+    let (settings, mut counts) = (first.settings, first.counts);
+    for (shard, (path, file)) in ordered {
+        let differs = |what: String| {
+            CliError::file(
+                &path,
+                format!(
+                    "shard {}/{} was made with {what} than shard 0",
+                    shard.index, shard.count
+                ),
+                hint,
+            )
+        };
+        if file.settings != settings {
+            return Err(
+                differs("other settings (logs, map, agent or behaviour cloning)".into()).into(),
+            );
+        }
+        counts.absorb(&file.counts).map_err(differs)?;
+    }
+    write_report(ctx, &out, &Report::new(settings, counts))
+}
+
 /// Scores one approach's decisions (`goes[i]` at the approach's i-th frame).
 fn score_approach(
-    score: &mut Score,
+    score: &mut Tally,
     log: &str,
     approach: &Approach,
     frames: &[LogFrame],

@@ -7,6 +7,7 @@
 
 pub mod insertion;
 pub mod obstacle;
+pub mod route;
 
 use rayon::prelude::*;
 use serde::Serialize;

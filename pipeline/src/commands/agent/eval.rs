@@ -3,21 +3,27 @@
 //! evaluation harness. Writes `eval.json` (fractions of reaches, crashes, off-roads and
 //! time-overs per condition and policy), `eval.md` (the table) and `recording.rrd`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use models::dqn::{load_network, read_agent_description};
+use models::dqn::{AgentDescription, load_network, read_agent_description};
 use models::policy::QPolicy;
+use models::qnet::QNetwork;
 use serde::Serialize;
 use sim::baselines::Baseline;
-use sim::eval::{Condition, ConditionResult, EvalOptions, evaluate, markdown_table};
+use sim::eval::{Condition, ConditionResult, EVAL_STAGE, EvalOptions, evaluate, markdown_table};
+use sim::seed::derive_seed;
+use sim::tasks::{Task as _, TaskResult, run_episodes, task_table};
 use sim::world::TrafficLevel;
+use sim::{Env as _, ObservationSpec};
 
+use super::tasks::{GenericTask, Insertion, Route, TaskKind};
 use super::train::{models_error, read_task, write_json};
-use super::{EvalArgs, episodes, insertion_setup, load_or_import_map};
+use super::{EvalArgs, Task, TaskRecord, episodes};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
+use crate::ui::Progress;
 
 pub const EVAL_JSON: &str = "eval.json";
 pub const EVAL_MD: &str = "eval.md";
@@ -57,6 +63,78 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     if args.episodes == 0 {
         return Err(CliError::new("--episodes must be positive", "e.g. --episodes 1000").into());
     }
+    let mut progress = ctx.ui.progress("agent eval");
+    progress.step(&format!("loading the agent {}", args.agent.display()));
+    let agent = LoadedAgent::load(&args.agent)?;
+    let map = args.map.clone().or_else(|| agent.task.map.clone());
+    if let Some(map) = &map {
+        progress.step(&format!("loading {}", map.display()));
+    }
+    match agent.task.task {
+        Task::RoundaboutInsertion => eval_insertion(ctx, args, agent, map, progress),
+        Task::RouteFollowing => eval_task::<Route>(ctx, args, agent, map, progress),
+    }
+}
+
+/// An agent folder's network, description and task record.
+struct LoadedAgent {
+    description: AgentDescription,
+    task: TaskRecord,
+    network: QNetwork,
+}
+
+impl LoadedAgent {
+    fn load(dir: &Path) -> Result<LoadedAgent> {
+        let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
+        let task = read_task(dir)?;
+        let network = load_network(dir, &description, &models::cpu_device())
+            .map_err(|e| models_error(e, dir))?;
+        Ok(LoadedAgent {
+            description,
+            task,
+            network,
+        })
+    }
+
+    /// The greedy policy, once the task's observations are checked to be what the agent
+    /// was trained on.
+    fn policy(self, dir: &Path, spec: ObservationSpec) -> Result<QPolicy> {
+        if spec != self.description.shape.spec() {
+            return Err(CliError::file(
+                dir,
+                format!(
+                    "was trained on observations {:?}, the task renders {spec:?}",
+                    self.description.shape.spec()
+                ),
+                "evaluate with the task settings the agent was trained with (task.json)",
+            )
+            .into());
+        }
+        Ok(QPolicy::new(
+            self.network,
+            spec,
+            self.description.shape.actions,
+            models::cpu_device(),
+        ))
+    }
+}
+
+/// The output folder: --out, else `AGENT/eval/<map name>` (or `<task>` without a map).
+fn output_dir(ctx: &Context<'_>, args: &EvalArgs, map: Option<&Path>, task: Task) -> PathBuf {
+    match (&args.out, map) {
+        (Some(out), _) => ctx.output_path(out),
+        (None, Some(map)) => args.agent.join("eval").join(map_name(map)),
+        (None, None) => args.agent.join("eval").join(task.name()),
+    }
+}
+
+fn eval_insertion(
+    ctx: &Context<'_>,
+    args: &EvalArgs,
+    agent: LoadedAgent,
+    map_path: Option<PathBuf>,
+    mut progress: Progress<'_>,
+) -> Result<()> {
     if let Some(a) = args
         .aggressiveness
         .iter()
@@ -68,36 +146,14 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         )
         .into());
     }
-    let mut progress = ctx.ui.progress("agent eval");
-    progress.step(&format!("loading the agent {}", args.agent.display()));
-    let device = models::cpu_device();
-    let description =
-        read_agent_description(&args.agent).map_err(|e| models_error(e, &args.agent))?;
-    let task = read_task(&args.agent)?;
-    let network = load_network(&args.agent, &description, &device)
-        .map_err(|e| models_error(e, &args.agent))?;
-
-    progress.step(&format!("loading {}", args.map.display()));
-    let map = load_or_import_map(&args.map)?;
-    let setup = insertion_setup(map, &args.map, task.config.clone())?;
+    let task = agent.task.clone();
+    let config = task.insertion_config(&args.agent.join(super::TASK_FILE))?;
+    let setup = Insertion::setup(map_path.as_deref(), &config)?;
+    let map_path = map_path.unwrap_or_default();
     let spec = setup.observation_spec();
-    if spec != description.shape.spec() {
-        return Err(CliError::file(
-            &args.agent,
-            format!(
-                "was trained on observations {:?}, the task renders {spec:?}",
-                description.shape.spec()
-            ),
-            "evaluate with the task settings the agent was trained with (task.json)",
-        )
-        .into());
-    }
-    let policy = QPolicy::new(network, spec, description.shape.actions, device);
+    let policy = agent.policy(&args.agent, spec)?;
 
-    let out = match &args.out {
-        Some(out) => ctx.output_path(out),
-        None => args.agent.join("eval").join(map_name(&args.map)),
-    };
+    let out = output_dir(ctx, args, Some(&map_path), task.task);
     AtomicDir::check_destination(&out, EVAL_MARKERS)?;
     let conditions = conditions(args);
     let options = EvalOptions {
@@ -132,8 +188,8 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
 
     let report = EvalReport {
         agent: args.agent.clone(),
-        map: args.map.clone(),
-        trained_on: task.map.clone(),
+        map: map_path.clone(),
+        trained_on: task.map.clone().unwrap_or_default(),
         episodes: args.episodes,
         seed: ctx.cli.seed,
         conditions: conditions
@@ -155,7 +211,7 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let table = format!(
         "# {} on {}\n\n{} episodes per condition and policy, seed {}; the same episodes for every policy.\n\n{}",
         args.agent.display(),
-        args.map.display(),
+        map_path.display(),
         args.episodes,
         ctx.cli.seed,
         markdown_table(&by_condition(&rows, conditions.len()))
@@ -188,6 +244,132 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     drop(progress);
     ctx.ui
         .result(&format!("{table}\nwritten to {}", dest.display()));
+    Ok(())
+}
+
+/// `eval.json` of a task other than insertion.
+#[derive(Debug, Serialize)]
+struct TaskEvalReport {
+    agent: PathBuf,
+    task: Task,
+    map: Option<PathBuf>,
+    trained_on: Option<PathBuf>,
+    episodes: usize,
+    seed: u64,
+    conditions: Vec<TaskConditionReport>,
+}
+
+#[derive(Debug, Serialize)]
+struct TaskConditionReport {
+    condition: String,
+    /// The agent first, then the baselines, each on the same episodes (seeds).
+    policies: Vec<TaskPolicyResult>,
+}
+
+#[derive(Debug, Serialize)]
+struct TaskPolicyResult {
+    policy: String,
+    #[serde(flatten)]
+    result: TaskResult,
+}
+
+/// Evaluates an agent of task `K` and its baselines on every condition of `K`.
+fn eval_task<K: GenericTask>(
+    ctx: &Context<'_>,
+    args: &EvalArgs,
+    agent: LoadedAgent,
+    map: Option<PathBuf>,
+    mut progress: Progress<'_>,
+) -> Result<()> {
+    let task = agent.task.clone();
+    let config = super::tasks::task_config::<K>(&task, &args.agent.join(super::TASK_FILE))?;
+    let setup = K::setup(map.as_deref(), &config)?;
+    let traffic: Vec<TrafficLevel> = args.traffic.iter().map(|&t| t.into()).collect();
+    let conditions = K::conditions(&traffic);
+    let spec = K::eval_env(&setup, &conditions[0]).observation_spec();
+    let policy = agent.policy(&args.agent, spec)?;
+    let out = output_dir(ctx, args, map.as_deref(), task.task);
+    AtomicDir::check_destination(&out, EVAL_MARKERS)?;
+
+    let seeds: Vec<u64> = (0..args.episodes as u64)
+        .map(|k| derive_seed(ctx.cli.seed, EVAL_STAGE, k))
+        .collect();
+    let baselines = if args.no_baselines {
+        Vec::new()
+    } else {
+        K::Env::baselines()
+    };
+    let mut reports = Vec::with_capacity(conditions.len());
+    let mut tables = String::new();
+    for condition in &conditions {
+        let make_env = || K::eval_env(&setup, condition);
+        progress.step(&format!("{condition}: agent, {} episodes", args.episodes));
+        let mut rows = vec![(
+            "agent".to_owned(),
+            TaskResult::of(&run_episodes(
+                make_env,
+                || policy.clone(),
+                &seeds,
+                AGENT_LOCKSTEP,
+            )),
+        )];
+        for (name, make_policy) in &baselines {
+            progress.step(&format!("{condition}: {name}"));
+            let summaries = run_episodes(make_env, make_policy, &seeds, AGENT_LOCKSTEP);
+            rows.push((name.clone(), TaskResult::of(&summaries)));
+        }
+        tables.push_str(&format!("## {condition}\n\n{}\n", task_table(&rows)));
+        reports.push(TaskConditionReport {
+            condition: condition.clone(),
+            policies: rows
+                .into_iter()
+                .map(|(policy, result)| TaskPolicyResult { policy, result })
+                .collect(),
+        });
+    }
+    let report = TaskEvalReport {
+        agent: args.agent.clone(),
+        task: task.task,
+        map: map.clone(),
+        trained_on: task.map.clone(),
+        episodes: args.episodes,
+        seed: ctx.cli.seed,
+        conditions: reports,
+    };
+    let text = format!(
+        "# {} ({}){}\n\n{} episodes per condition and policy, seed {}; the same episodes for every policy.\n\n{tables}",
+        args.agent.display(),
+        task.task.name(),
+        map.as_ref()
+            .map_or(String::new(), |m| format!(" on {}", m.display())),
+        args.episodes,
+        ctx.cli.seed,
+    );
+
+    let dir = AtomicDir::create(&out, EVAL_MARKERS)?;
+    write_json(&dir.path().join(EVAL_JSON), &report)?;
+    write_file_atomic(&dir.path().join(EVAL_MD), text.as_bytes())?;
+    let recording = ctx.open_recording(Some(dir.path()))?;
+    if let Some(rec) = recording.stream()
+        && args.record_episodes > 0
+    {
+        progress.step("recording greedy episodes");
+        if let Some(map) = K::map(&setup) {
+            crate::recording::log_map(rec, map)?;
+        }
+        episodes::record_task(
+            rec,
+            || K::eval_env(&setup, &conditions[0]),
+            &policy,
+            args.record_episodes,
+            ctx.cli.seed,
+        )?;
+    }
+    recording.finish()?;
+    let dest = dir.commit()?;
+    drop(progress);
+    ctx.ui
+        .result(&format!("{text}\nwritten to {}", dest.display()));
     Ok(())
 }
 

@@ -12,6 +12,7 @@
 
 mod episodes;
 mod eval;
+pub mod tasks;
 pub(crate) mod train;
 
 use std::path::{Path, PathBuf};
@@ -49,6 +50,17 @@ pub enum AgentCommand {
 pub enum Task {
     /// Enter a roundabout from a yield line through circulating traffic (the Parma study).
     RoundaboutInsertion,
+    /// Follow a planned route over an imported campus, keeping in lane among other traffic
+    /// (the AIT / MTSU studies).
+    RouteFollowing,
+}
+
+impl Task {
+    /// The `--task` value.
+    pub fn name(self) -> String {
+        self.to_possible_value()
+            .map_or_else(|| format!("{self:?}"), |v| v.get_name().to_owned())
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -73,9 +85,10 @@ pub struct TrainArgs {
     #[arg(long, value_enum, default_value = "roundabout-insertion")]
     pub task: Task,
 
-    /// The map: a folder or file from `pipeline map import`, or an OSM / Lanelet2 file.
+    /// The map: a folder or file from `pipeline map import`, or an OSM / Lanelet2 file
+    /// (required by the tasks that drive on a map).
     #[arg(long, value_name = "PATH")]
-    pub map: PathBuf,
+    pub map: Option<PathBuf>,
 
     /// Agent folder (written atomically at the end; checkpoints go to DIR.partial meanwhile).
     #[arg(long, value_name = "DIR")]
@@ -105,9 +118,9 @@ pub struct EvalArgs {
     #[arg(long, value_name = "DIR")]
     pub agent: PathBuf,
 
-    /// The map (need not be the one the agent was trained on).
+    /// The map (need not be the one the agent was trained on) [default: the training map].
     #[arg(long, value_name = "PATH")]
-    pub map: PathBuf,
+    pub map: Option<PathBuf>,
 
     /// Episodes per condition and policy.
     #[arg(long, value_name = "N", default_value_t = 1000)]
@@ -140,7 +153,10 @@ pub struct EvalArgs {
 #[serde(default, deny_unknown_fields)]
 pub struct AgentConfig {
     pub dqn: models::dqn::DqnConfig,
+    /// Roundabout insertion.
     pub task: InsertionConfig,
+    /// Route following.
+    pub route: sim::tasks::route::RouteConfig,
 }
 
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same
@@ -148,10 +164,26 @@ pub struct AgentConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TaskRecord {
     pub task: Task,
-    /// The map file as given to `agent train`.
-    pub map: PathBuf,
+    /// The map file as given to `agent train` (None for tasks on a synthetic road).
+    pub map: Option<PathBuf>,
     pub traffic: TrafficLevel,
-    pub config: InsertionConfig,
+    /// The task's `[agent.<table>]` settings (see [`tasks::TaskKind::Config`]).
+    pub config: serde_json::Value,
+}
+
+impl TaskRecord {
+    /// The roundabout-insertion settings of an insertion agent.
+    pub fn insertion_config(&self, file: &Path) -> Result<InsertionConfig> {
+        if self.task != Task::RoundaboutInsertion {
+            return Err(CliError::file(
+                file,
+                format!("is a {:?} agent, not a roundabout-insertion one", self.task),
+                "give an agent trained with --task roundabout-insertion",
+            )
+            .into());
+        }
+        tasks::task_config::<tasks::Insertion>(self, file)
+    }
 }
 
 pub const TASK_FILE: &str = "task.json";

@@ -1,4 +1,4 @@
-//! `pipeline agent train`: a DQN-family agent on roundabout insertion.
+//! `pipeline agent train`: a DQN-family agent on one of the driving tasks.
 //!
 //! While training, checkpoints go to `DIR.partial/checkpoint` (each written to a temporary
 //! folder and renamed into place); `--resume` continues from there after a kill. At the end
@@ -9,7 +9,6 @@
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::recording::Stream;
@@ -19,11 +18,10 @@ use models::dqn::{
     AGENT_FILE, Checkpoint, EpisodeRecord, LossRecord, OutcomeName, TrainObserver, TrainState,
 };
 use serde::Serialize;
-use sim::eval::Condition;
-use sim::tasks::RoundaboutInsertion;
 use sim::world::TrafficLevel;
 
-use super::{TASK_FILE, TaskRecord, TrainArgs, episodes, insertion_setup, load_or_import_map};
+use super::tasks::{Insertion, Route, TaskKind, task_config};
+use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
@@ -37,6 +35,14 @@ pub const SUMMARY_FILE: &str = "summary.json";
 const RATE_WINDOW: usize = 100;
 
 pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
+    match args.task {
+        Task::RoundaboutInsertion => train_task::<Insertion>(ctx, args),
+        Task::RouteFollowing => train_task::<Route>(ctx, args),
+    }
+}
+
+/// Trains an agent on task `K` (see [`TaskKind`]).
+fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let out = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out, AGENT_MARKERS)?;
     let partial = partial_dir(&out)?;
@@ -50,14 +56,27 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         None
     };
     let (mut dqn, task_config, seed) = match &resume {
-        Some((checkpoint, task)) => (
-            checkpoint.config.clone(),
-            task.config.clone(),
-            checkpoint.state.seed,
-        ),
+        Some((checkpoint, task, file)) => {
+            if task.task != args.task {
+                return Err(CliError::file(
+                    file,
+                    format!(
+                        "the checkpoint was trained on {:?}, not {:?}",
+                        task.task, args.task
+                    ),
+                    "resume with the --task it was started with",
+                )
+                .into());
+            }
+            (
+                checkpoint.config.clone(),
+                task_config::<K>(task, file)?,
+                checkpoint.state.seed,
+            )
+        }
         None => (
             ctx.config.agent.dqn.clone(),
-            ctx.config.agent.task.clone(),
+            K::config(&ctx.config.agent),
             ctx.cli.seed,
         ),
     };
@@ -73,34 +92,34 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     dqn.validate().map_err(|e| config_error(ctx, e))?;
     let traffic = TrafficLevel::from(args.traffic);
 
-    progress.step(&format!("loading {}", args.map.display()));
-    let map = load_or_import_map(&args.map)?;
-    let setup = insertion_setup(map, &args.map, task_config.clone())?;
-    let envs: Vec<RoundaboutInsertion> = (0..dqn.envs)
-        .map(|_| {
-            let mut env = RoundaboutInsertion::new(Arc::clone(&setup));
-            env.set_traffic(traffic);
-            env
-        })
+    if let Some(map) = &args.map {
+        progress.step(&format!("loading {}", map.display()));
+    }
+    let setup = K::setup(args.map.as_deref(), &task_config)?;
+    let envs: Vec<K::Env> = (0..dqn.envs)
+        .map(|_| K::train_env(&setup, traffic))
         .collect();
     let task = TaskRecord {
         task: args.task,
         map: args.map.clone(),
         traffic,
-        config: task_config,
+        config: serde_json::to_value(&task_config)
+            .context("the task's config cannot be written as JSON")?,
     };
 
     let dir = AtomicDir::create(&out, AGENT_MARKERS)?;
     let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream() {
-        crate::recording::log_map(rec, setup.map())?;
-        if let Some((checkpoint, _)) = &resume {
+        if let Some(map) = K::map(&setup) {
+            crate::recording::log_map(rec, map)?;
+        }
+        if let Some((checkpoint, _, _)) = &resume {
             log_history(rec, &checkpoint.state)?;
         }
     }
 
     let started = Instant::now();
-    let first_step = resume.as_ref().map_or(0, |(c, _)| c.state.steps);
+    let first_step = resume.as_ref().map_or(0, |(c, _, _)| c.state.steps);
     progress.step(&format!(
         "training for {} transitions in {} environments ({} traffic)",
         dqn.total_steps,
@@ -128,8 +147,8 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         &dqn,
         seed,
         envs,
-        resume.map(|(c, _)| c),
-        &models::cpu_device(),
+        resume.map(|(c, _, _)| c),
+        &ctx.device()?,
         &mut observer,
     );
     if let Some(e) = observer.error.take() {
@@ -156,11 +175,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             checkpoint.shape.actions,
             models::cpu_device(),
         );
-        let condition = Condition {
-            traffic,
-            aggressiveness: 0.5,
-        };
-        episodes::record(rec, &setup, &policy, condition, args.record_episodes, seed)?;
+        K::record_episodes(rec, &setup, &policy, traffic, args.record_episodes, seed)?;
     }
     recording.finish()?;
     let dest = dir.commit()?;
@@ -185,8 +200,9 @@ fn partial_dir(out: &Path) -> Result<PathBuf> {
     Ok(out.with_file_name(format!("{}.partial", name.to_string_lossy())))
 }
 
-/// The checkpoint to resume from: the newest in `DIR.partial`, else the finished agent in `DIR`.
-fn find_checkpoint(out: &Path, partial: &Path) -> Result<(Checkpoint, TaskRecord)> {
+/// The checkpoint to resume from: the newest in `DIR.partial`, else the finished agent in
+/// `DIR`; with its task record and the folder it came from.
+fn find_checkpoint(out: &Path, partial: &Path) -> Result<(Checkpoint, TaskRecord, PathBuf)> {
     let candidates = [partial.join("checkpoint"), out.to_path_buf()];
     let Some(dir) = candidates.iter().find(|d| d.join(AGENT_FILE).is_file()) else {
         return Err(CliError::new(
@@ -202,7 +218,7 @@ fn find_checkpoint(out: &Path, partial: &Path) -> Result<(Checkpoint, TaskRecord
     let checkpoint =
         Checkpoint::load(dir, &models::cpu_device()).map_err(|e| models_error(e, dir))?;
     let task = read_task(dir)?;
-    Ok((checkpoint, task))
+    Ok((checkpoint, task, dir.join(TASK_FILE)))
 }
 
 pub fn read_task(dir: &Path) -> Result<TaskRecord> {

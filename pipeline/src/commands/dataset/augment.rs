@@ -47,6 +47,11 @@ pub struct AugmentArgs {
 
     #[command(flatten)]
     pub output: DatasetOutputArgs,
+
+    /// Augment only shard i of n of the input's items (for running across machines);
+    /// merge the n shard folders with `pipeline dataset merge --shards` (docs/scaling.md).
+    #[arg(long, value_name = "i/n", value_parser = datasets::shard::Shard::parse)]
+    pub shard: Option<datasets::shard::Shard>,
 }
 
 fn load_transforms(args: &AugmentArgs) -> Result<AugmentConfig> {
@@ -104,6 +109,7 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
         include_originals: args.include_originals,
         seed: ctx.cli.seed,
         on_error: args.output.on_error.into(),
+        shard: args.shard,
     };
     let outcome = augment_dataset(&dataset, &opts, dir.path()).map_err(|e| {
         CliError::new(

@@ -31,8 +31,9 @@ pub struct MergeArgs {
     #[arg(long)]
     pub name: Option<String>,
 
-    /// The inputs are the shards of one `dataset generate --shard i/n` run: put them back
-    /// together in item order (the result is the unsharded run's folder, byte for byte).
+    /// The inputs are the shards of one `dataset generate --shard i/n` or `dataset augment
+    /// --shard i/n` run: put them back together in item order (the result is the unsharded
+    /// run's folder, byte for byte).
     #[arg(long, conflicts_with_all = ["weights", "total"])]
     pub shards: bool,
 }

@@ -1,9 +1,10 @@
-//! `pipeline logs info | convert | project`: summaries of MCAP files and ROS 2 bags,
-//! INTERACTION track files written as MCAP logs, and logs projected into the bird's-eye
-//! representation.
+//! `pipeline logs info | convert | project | merge`: summaries of MCAP files and ROS 2
+//! bags, INTERACTION track files written as MCAP logs, logs projected into the bird's-eye
+//! representation, and the shards of a projection merged.
 
 mod convert;
 mod info;
+mod merge;
 mod project;
 
 use std::path::PathBuf;
@@ -26,6 +27,9 @@ pub enum LogsCommand {
     /// Draw a log's object frames in the bird's-eye representation around one vehicle
     /// (the same layers the simulator draws), as a frame dataset.
     Project(project::ProjectArgs),
+    /// Put the frame folders of one `logs project --shard i/n` run back together (the
+    /// unsharded run's folder, byte for byte).
+    Merge(merge::MergeArgs),
 }
 
 #[derive(Debug, Args)]
@@ -73,6 +77,7 @@ pub fn run(ctx: &Context<'_>, command: &LogsCommand) -> Result<()> {
         LogsCommand::Info(args) => info::run(ctx, args),
         LogsCommand::Convert(args) => convert::run(ctx, args),
         LogsCommand::Project(args) => project::run(ctx, args),
+        LogsCommand::Merge(args) => merge::run(ctx, args),
     }
 }
 

@@ -6,6 +6,10 @@
 //! pose and speed, road users), `layers.bin` (the frames' `u8` layers, frame after frame,
 //! layer-major, `width × height` bytes per layer), a few `previews/*.png` (layers in
 //! colour) and the rerun recording (the map, every vehicle as a box, the layers).
+//!
+//! With `--shard i/n` only shard `i`'s share of the ego's frames is drawn, and the folder
+//! holds `frames.json` (with the shard record), `frames.jsonl` and `layers.bin`, no
+//! previews and no recording; `pipeline logs merge --shards` puts the shards together.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -15,8 +19,9 @@ use anyhow::{Context as _, Result};
 use clap::Args;
 use datasets::logs::decode::read_decoded;
 use datasets::logs::noise::NoiseConfig;
-use datasets::logs::project::{LogFrame, log_frames, project, track_lengths};
+use datasets::logs::project::{LogFrame, log_frames, project_shard, track_lengths};
 use datasets::logs::source::{Log, ReadOptions};
+use datasets::shard::{SHARD_KEY, Shard};
 use image::RgbImage;
 use serde_json::json;
 use sim::render::{BevConfig, BevRenderer, Layer};
@@ -31,7 +36,10 @@ use crate::recording::{log_actors, log_layers, log_map};
 pub const FRAMES_JSON: &str = "frames.json";
 pub const FRAMES_JSONL: &str = "frames.jsonl";
 pub const LAYERS_BIN: &str = "layers.bin";
-const MARKERS: crate::output::Markers = &[FRAMES_JSON];
+pub const PREVIEWS_DIR: &str = "previews";
+/// Key of a shard's `frames.json` saying how many previews the merged folder gets.
+pub const SHARD_PREVIEWS_KEY: &str = "shard_previews";
+pub const MARKERS: crate::output::Markers = &[FRAMES_JSON];
 
 #[derive(Debug, Args)]
 pub struct ProjectArgs {
@@ -79,6 +87,11 @@ pub struct ProjectArgs {
     /// move sideways by this standard deviation, m.
     #[arg(long, value_name = "M", default_value_t = 0.0)]
     pub path_noise: f64,
+
+    /// Draw only shard i of n of the ego's frames (for running across machines); merge the
+    /// n shard folders with `pipeline logs merge --shards` (docs/scaling.md).
+    #[arg(long, value_name = "i/n", value_parser = Shard::parse)]
+    pub shard: Option<Shard>,
 }
 
 /// A frame's layers in colour: navigable grey, path green, stop lines yellow, vehicles red.
@@ -112,6 +125,46 @@ fn preview(frame: &[u8], config: &BevConfig) -> RgbImage {
             [20, 20, 20]
         })
     })
+}
+
+/// Writes `n` previews evenly spread over the frames of `layers` (the first and the last
+/// included) into `dir/previews/frame_<j>.png`.
+pub fn write_previews(
+    dir: &std::path::Path,
+    layers: &[u8],
+    n: usize,
+    config: &BevConfig,
+) -> Result<()> {
+    let frame_len = config.frame_len();
+    let frames = layers.len() / frame_len.max(1);
+    if n == 0 || frames == 0 {
+        return Ok(());
+    }
+    let previews = dir.join(PREVIEWS_DIR);
+    std::fs::create_dir_all(&previews)
+        .with_context(|| format!("{}: cannot create the folder", previews.display()))?;
+    let n = n.min(frames);
+    for p in 0..n {
+        let j = if n == 1 {
+            0
+        } else {
+            p * (frames - 1) / (n - 1)
+        };
+        let png = datasets::image_io::encode_rgb_png(&preview(
+            &layers[j * frame_len..(j + 1) * frame_len],
+            config,
+        ));
+        let path = previews.join(format!("frame_{j:06}.png"));
+        std::fs::write(&path, png).with_context(|| format!("{}: cannot write", path.display()))?;
+    }
+    Ok(())
+}
+
+/// Writes a frame folder's `frames.json` (pretty JSON and a newline).
+pub fn write_frames_card(dir: &std::path::Path, card: &serde_json::Value) -> Result<()> {
+    let path = dir.join(FRAMES_JSON);
+    std::fs::write(&path, format!("{}\n", serde_json::to_string_pretty(card)?))
+        .with_context(|| format!("{}: cannot write", path.display()))
 }
 
 pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
@@ -188,7 +241,7 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         path_sigma_m: args.path_noise,
         seed: ctx.cli.seed,
     };
-    let (figures, layers) = project(&map, &renderer, &frames, ego, &noise);
+    let (figures, layers) = project_shard(&map, &renderer, &frames, ego, &noise, args.shard);
     let seconds = start.elapsed().as_secs_f64();
 
     let dir = AtomicDir::create(&out, MARKERS)?;
@@ -197,7 +250,7 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
             .with_context(|| format!("{}: cannot write {name}", out.display()))
     };
     let layer_names: Vec<&str> = config.layers.iter().map(|l| l.name()).collect();
-    let card = json!({
+    let mut card = json!({
         "tool": "pipeline logs project",
         "pipeline_version": env!("CARGO_PKG_VERSION"),
         "log": args.log.file_name().map(|n| n.to_string_lossy().into_owned()),
@@ -213,10 +266,11 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         "noise": noise,
         "layers_file": LAYERS_BIN,
     });
-    write(
-        FRAMES_JSON,
-        format!("{}\n", serde_json::to_string_pretty(&card)?).as_bytes(),
-    )?;
+    if let (Some(shard), Some(object)) = (args.shard, card.as_object_mut()) {
+        object.insert(SHARD_KEY.into(), json!(shard));
+        object.insert(SHARD_PREVIEWS_KEY.into(), json!(args.previews));
+    }
+    write_frames_card(dir.path(), &card)?;
     let mut lines = String::new();
     for f in &figures {
         lines.push_str(&serde_json::to_string(f)?);
@@ -225,23 +279,20 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
     write(FRAMES_JSONL, lines.as_bytes())?;
     write(LAYERS_BIN, &layers)?;
     let frame_len = config.frame_len();
-    if args.previews > 0 && !figures.is_empty() {
-        std::fs::create_dir_all(dir.path().join("previews"))?;
-        // Evenly spread, the first and last frames included.
-        let n = args.previews.min(figures.len());
-        for p in 0..n {
-            let j = if n == 1 {
-                0
-            } else {
-                p * (figures.len() - 1) / (n - 1)
-            };
-            let png = datasets::image_io::encode_rgb_png(&preview(
-                &layers[j * frame_len..(j + 1) * frame_len],
-                &config,
-            ));
-            write(&format!("previews/frame_{j:06}.png"), &png)?;
-        }
+    if let Some(shard) = args.shard {
+        // The merge draws the previews; shards write no recording.
+        let dest = dir.commit()?;
+        drop(progress);
+        ctx.ui.result(&format!(
+            "{} frames around track {ego} in {seconds:.2} s (shard {}/{}); wrote {}",
+            figures.len(),
+            shard.index,
+            shard.count,
+            dest.display()
+        ));
+        return Ok(());
     }
+    write_previews(dir.path(), &layers, args.previews, &config)?;
 
     let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream() {

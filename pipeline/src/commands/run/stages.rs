@@ -144,6 +144,9 @@ impl StageEnv<'_> {
             (RerunMode::Off, _) | (_, None) => "off".into(),
             _ => "save".into(),
         });
+        if let Some(device) = clap::ValueEnum::to_possible_value(&cli.device) {
+            argv.extend(["--device".into(), device.get_name().to_owned()]);
+        }
         match self.ctx.ui.verbosity() {
             Verbosity::Quiet => argv.push("-q".into()),
             Verbosity::Verbose => argv.push("-v".into()),

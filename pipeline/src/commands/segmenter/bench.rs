@@ -20,7 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::train::ArchArgs;
-use super::{Context, cpu, open_model, with_threads};
+use super::{Context, open_model, with_threads};
 use crate::error::CliError;
 
 #[derive(Debug, Args)]
@@ -196,7 +196,7 @@ pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
         )
         .into());
     }
-    let device = cpu();
+    let device = ctx.device()?;
     let (model, config) = match &args.model {
         Some(dir) => open_model(dir, &device)?,
         None => {

@@ -13,7 +13,7 @@ use models::segmenter::{ConfusionMatrix, MetricsSummary};
 use serde::Serialize;
 
 use super::{
-    Context, ModelArgs, cpu, model_dir, open_model, open_sources, parse_source, segmenter_error,
+    Context, ModelArgs, model_dir, open_model, open_sources, parse_source, segmenter_error,
     with_threads,
 };
 use crate::output::{AtomicDir, Markers, write_file_atomic};
@@ -76,7 +76,7 @@ pub struct EvalReport {
 pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let out_path = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out_path, EVAL_MARKERS)?;
-    let device = cpu();
+    let device = ctx.device()?;
     let (model, config) = open_model(&args.model.model, &device)?;
     let split = match args.split {
         SplitArg::Train => Split::Train,

@@ -70,11 +70,6 @@ impl ModelArgs {
     }
 }
 
-/// The CPU device (burn's flex backend).
-pub fn cpu() -> Device {
-    Device::flex()
-}
-
 /// A model folder, or a run folder's best model.
 pub fn model_dir(path: &Path) -> PathBuf {
     if !path.join(MODEL_CONFIG_FILE).is_file()

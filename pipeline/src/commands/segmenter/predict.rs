@@ -8,7 +8,7 @@ use clap::Args;
 use datasets::image_io::{encode_label_png, encode_rgb_png, overlay_label, read_rgb};
 use models::segmenter::infer::predict_label;
 
-use super::{Context, ModelArgs, cpu, open_model, with_threads};
+use super::{Context, ModelArgs, open_model, with_threads};
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 
@@ -74,7 +74,7 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
     let out_path = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out_path, PREDICT_MARKERS)?;
     let files = inputs(&args.input)?;
-    let device = cpu();
+    let device = ctx.device()?;
     let (model, config) = open_model(&args.model.model, &device)?;
     let dir = AtomicDir::create(&out_path, PREDICT_MARKERS)?;
     for sub in [LABELS_DIR, OVERLAYS_DIR] {

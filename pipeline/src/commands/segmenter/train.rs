@@ -10,7 +10,7 @@ use models::segmenter::data::{SourceSpec, Split};
 use models::segmenter::train::{StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, train};
 
 use super::record::TrainRecorder;
-use super::{Context, cpu, open_sources, parse_source, segmenter_error, with_threads};
+use super::{Context, open_sources, parse_source, segmenter_error, with_threads};
 use crate::error::CliError;
 
 #[derive(Debug, Args)]
@@ -258,7 +258,7 @@ pub fn run(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let recording = ctx.open_recording(Some(&out))?;
     let mut progress = ctx.ui.progress("segmenter train");
     let mut recorder = TrainRecorder::new(&recording, &mut progress, config.model.classes)?;
-    let device = cpu();
+    let device = ctx.device()?;
     let summary = with_threads(args.threads, || {
         train(&out, &config, &data, args.resume, &device, &mut recorder)
     })?

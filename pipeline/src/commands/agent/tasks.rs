@@ -1,0 +1,208 @@
+//! What `agent train` and `agent eval` need of each task, behind one trait.
+//!
+//! Registering a new task (one file of `sim::tasks` implementing `sim::tasks::Task`):
+//! 1. a variant of [`Task`](super::Task) (its kebab-case name is the `--task` value);
+//! 2. its config table in [`AgentConfig`](super::AgentConfig) (e.g. `[agent.obstacle]`);
+//! 3. a unit struct implementing [`TaskKind`] below (usually through [`GenericTask`]);
+//! 4. an arm in the `match` of `train::train` and of `eval::eval`.
+//!
+//! Roundabout insertion keeps its own evaluation (conditions of traffic × aggressiveness,
+//! the Parma study's baselines); every other task is evaluated by the generic
+//! `sim::tasks::run_episodes` over the conditions its [`TaskKind`] names.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Result;
+use maps::Map;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+use sim::Env;
+use sim::tasks::route::{RouteConfig, RouteFollowing, RouteSetup, RouteSplit};
+use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
+use sim::world::TrafficLevel;
+
+use models::policy::QPolicy;
+use sim::eval::Condition;
+
+use super::{AgentConfig, TaskRecord, episodes, insertion_setup, load_or_import_map};
+use crate::error::CliError;
+use crate::recording::Stream;
+
+/// The task-specific parts of training and evaluating an agent.
+pub trait TaskKind {
+    /// What the agent acts in.
+    type Env: Env + 'static;
+    /// The task's `[agent.<table>]` settings, stored in the agent's `task.json`.
+    type Config: Clone + Serialize + DeserializeOwned;
+    /// Prepared once (map, layouts, renderers) and shared by every environment.
+    type Setup: Send + Sync;
+
+    /// The `[agent.<table>]` of the config file.
+    fn config(agent: &AgentConfig) -> Self::Config;
+
+    /// Prepares the task, on the map at `map` when the task drives on one.
+    fn setup(map: Option<&Path>, config: &Self::Config) -> Result<Arc<Self::Setup>>;
+
+    /// The map the task drives on, for the recording.
+    fn map(setup: &Self::Setup) -> Option<&Map>;
+
+    /// One training environment.
+    fn train_env(setup: &Arc<Self::Setup>, traffic: TrafficLevel) -> Self::Env;
+
+    /// Logs `count` greedy episodes of `policy` to the recording: the first `count`
+    /// episodes of an evaluation with `seed`.
+    fn record_episodes(
+        rec: &Stream,
+        setup: &Arc<Self::Setup>,
+        policy: &QPolicy,
+        traffic: TrafficLevel,
+        count: usize,
+        seed: u64,
+    ) -> Result<()>;
+}
+
+/// A task evaluated by the generic harness: named conditions, each its own environments.
+pub trait GenericTask: TaskKind<Env: sim::tasks::Task + 'static> {
+    /// The evaluation conditions by name, e.g. obstacle scenarios or traffic levels;
+    /// `traffic` is what `agent eval --traffic` asked for (empty: the task's default).
+    fn conditions(traffic: &[TrafficLevel]) -> Vec<String>;
+
+    /// One environment of condition `name` (one of [`GenericTask::conditions`]).
+    fn eval_env(setup: &Arc<Self::Setup>, condition: &str) -> Self::Env;
+}
+
+/// The task's config as stored in `task.json`.
+pub fn task_config<K: TaskKind>(record: &TaskRecord, file: &Path) -> Result<K::Config> {
+    serde_json::from_value(record.config.clone()).map_err(|e| {
+        CliError::file(
+            file,
+            format!("the {:?} task's config is invalid: {e}", record.task),
+            "give a folder written by `pipeline agent train` of this version",
+        )
+        .into()
+    })
+}
+
+/// The map argument of a task that drives on a map.
+pub fn required_map(map: Option<&Path>, task: &str) -> Result<Map> {
+    let Some(path) = map else {
+        return Err(CliError::new(
+            format!("--map is required for the {task} task"),
+            "give a map folder from `pipeline map import`, or an OSM / Lanelet2 file",
+        )
+        .into());
+    };
+    load_or_import_map(path)
+}
+
+/// Roundabout insertion (the Parma study).
+#[derive(Debug)]
+pub struct Insertion;
+
+impl TaskKind for Insertion {
+    type Env = RoundaboutInsertion;
+    type Config = InsertionConfig;
+    type Setup = InsertionSetup;
+
+    fn config(agent: &AgentConfig) -> InsertionConfig {
+        agent.task.clone()
+    }
+
+    fn setup(map: Option<&Path>, config: &InsertionConfig) -> Result<Arc<InsertionSetup>> {
+        let loaded = required_map(map, "roundabout-insertion")?;
+        insertion_setup(loaded, map.unwrap_or(Path::new("")), config.clone())
+    }
+
+    fn map(setup: &InsertionSetup) -> Option<&Map> {
+        Some(setup.map())
+    }
+
+    fn train_env(setup: &Arc<InsertionSetup>, traffic: TrafficLevel) -> RoundaboutInsertion {
+        let mut env = RoundaboutInsertion::new(Arc::clone(setup));
+        env.set_traffic(traffic);
+        env
+    }
+
+    fn record_episodes(
+        rec: &Stream,
+        setup: &Arc<InsertionSetup>,
+        policy: &QPolicy,
+        traffic: TrafficLevel,
+        count: usize,
+        seed: u64,
+    ) -> Result<()> {
+        let condition = Condition {
+            traffic,
+            aggressiveness: 0.5,
+        };
+        episodes::record(rec, setup, policy, condition, count, seed)
+    }
+}
+
+/// Campus route following (the AIT / MTSU studies).
+#[derive(Debug)]
+pub struct Route;
+
+impl TaskKind for Route {
+    type Env = RouteFollowing;
+    type Config = RouteConfig;
+    type Setup = RouteSetup;
+
+    fn config(agent: &AgentConfig) -> RouteConfig {
+        agent.route.clone()
+    }
+
+    fn setup(map: Option<&Path>, config: &RouteConfig) -> Result<Arc<RouteSetup>> {
+        let loaded = required_map(map, "route-following")?;
+        let path = map.unwrap_or(Path::new(""));
+        RouteSetup::new(Arc::new(loaded), config.clone()).map_err(|e| {
+            CliError::file(
+                path,
+                format!("cannot set up route following: {e}"),
+                "the map needs connected car lanes with routes of [agent.route] route_length_m",
+            )
+            .into()
+        })
+    }
+
+    fn map(setup: &RouteSetup) -> Option<&Map> {
+        Some(setup.map())
+    }
+
+    fn train_env(setup: &Arc<RouteSetup>, _: TrafficLevel) -> RouteFollowing {
+        let mut env = RouteFollowing::new(Arc::clone(setup));
+        env.set_split(RouteSplit::Training);
+        env
+    }
+
+    fn record_episodes(
+        rec: &Stream,
+        setup: &Arc<RouteSetup>,
+        policy: &QPolicy,
+        _: TrafficLevel,
+        count: usize,
+        seed: u64,
+    ) -> Result<()> {
+        episodes::record_task(rec, || Self::eval_env(setup, HELD_OUT), policy, count, seed)
+    }
+}
+
+const HELD_OUT: &str = "held-out routes";
+const TRAINING_ROUTES: &str = "training routes";
+
+impl GenericTask for Route {
+    fn conditions(_: &[TrafficLevel]) -> Vec<String> {
+        vec![HELD_OUT.to_owned(), TRAINING_ROUTES.to_owned()]
+    }
+
+    fn eval_env(setup: &Arc<RouteSetup>, condition: &str) -> RouteFollowing {
+        let mut env = RouteFollowing::new(Arc::clone(setup));
+        env.set_split(if condition == TRAINING_ROUTES {
+            RouteSplit::Training
+        } else {
+            RouteSplit::HeldOut
+        });
+        env
+    }
+}

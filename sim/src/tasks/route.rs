@@ -1,0 +1,937 @@
+//! Campus route following (the AIT lane-keeping study with the MTSU route goal): the ego
+//! follows a planned route over an imported map, keeping in its lane among other traffic.
+//!
+//! - Routes: a pool of fastest routes between random lanes of the map (`maps::route`),
+//!   `route_length_m` long, drawn once per map from `pool_seed`. A fixed share of them
+//!   (`held_out_fraction`, chosen by a hash of their end lanes) is held out: training
+//!   episodes never see them, evaluation on [`RouteSplit::HeldOut`] uses only them.
+//! - Actions (on steering increments): **forward** (steering kept), **forward+left**
+//!   (steering + `steer_increment_rad`), **forward+right** (− the same), within
+//!   ±`max_steer_rad`. Speed is not the agent's: the ego accelerates to `max_speed_kmh`
+//!   (8 km/h by default, the study's campus speed) and brakes (IDM) behind a vehicle in its
+//!   lane ahead.
+//! - Other traffic: `other_vehicles` vehicles on other routes of the pool near the ego's
+//!   and on the ego's own route ahead of it, each driving its route at its own steady speed
+//!   (they do not react to the ego: a road user that does not yield, as on a campus).
+//! - Reward per decision: `speed / max_speed + in-lane fraction` (the share of the ego's
+//!   width within its lane), replaced by `below_lane_penalty` (−1) when the fraction is
+//!   under `in_lane_threshold` (0.98); `steer_change_penalty` (−0.2) on a steering change;
+//!   `terminal_penalty` (−4) when the ego goes off road or hits a vehicle.
+//! - Termination: Reached (the route's end), Crashed, OffRoad (the ego's centre more than
+//!   `off_road_m` beyond its lane's edge), TimeOver (`time_limit_factor` × the route's
+//!   time at the maximum speed, plus 10 s).
+//! - Observation (no layers): the route ahead in the ego's frame (lateral offsets of the
+//!   route's centre line at `lookahead_m` metres along it), the lane's half width, speed and
+//!   steering angle, and the nearest other vehicle within 20 m (ego-frame position). A
+//!   navigation system gives a driver the route the same way; the bird's-eye layers are an
+//!   option of the insertion and roundabout-driving tasks, not of this one yet.
+//! - Metrics: route completion (share of the route driven), lane-centre RMS error (m),
+//!   time in lane (share of decisions at or above the in-lane threshold).
+
+use std::sync::Arc;
+
+use maps::route::Router;
+use maps::{LaneId, Map, Point};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
+use crate::error::SimError;
+use crate::kinematics::{Bicycle, advance_speed, direction};
+use crate::path::{Path, PieceKey, SpeedProfile, wrap_angle};
+use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
+use crate::seed::derive_seed;
+use crate::tasks::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
+use crate::world::{Driver, DriverConfig, EgoConfig};
+
+/// The three actions, by index.
+pub const ACTION_NAMES: [&str; 3] = ["forward", "forward_left", "forward_right"];
+const FORWARD: usize = 0;
+const LEFT: usize = 1;
+const RIGHT: usize = 2;
+
+/// Distance within which the nearest other vehicle is an input, m.
+const NEAR_M: f64 = 20.0;
+
+/// Reward constants (the AIT study's).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RouteReward {
+    pub in_lane_threshold: f64,
+    pub below_lane_penalty: f64,
+    pub terminal_penalty: f64,
+    pub steer_change_penalty: f64,
+}
+
+impl Default for RouteReward {
+    fn default() -> Self {
+        RouteReward {
+            in_lane_threshold: 0.98,
+            below_lane_penalty: -1.0,
+            terminal_penalty: -4.0,
+            steer_change_penalty: -0.2,
+        }
+    }
+}
+
+/// `[agent.route]`: the route-following task's settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RouteConfig {
+    /// The ego's size, wheelbase and steering limit (`max_steer_rad`).
+    pub ego: EgoConfig,
+    pub max_speed_kmh: f64,
+    /// Simulation step, s.
+    pub step_s: f64,
+    /// Simulation steps per decision.
+    pub action_repeat: usize,
+    pub steer_increment_rad: f64,
+    /// Length range of the routes in the pool, m (the MTSU routes were about 128 m).
+    pub route_length_m: (f64, f64),
+    /// Routes in the pool.
+    pub pool_size: usize,
+    /// Seed of the pool (fixed, so a map always has the same routes and held-out set).
+    pub pool_seed: u64,
+    /// Share of the pool held out of training.
+    pub held_out_fraction: f64,
+    pub other_vehicles: usize,
+    /// Speed range of the other vehicles, m/s.
+    pub other_speed_mps: (f64, f64),
+    /// Lateral distances of the route's centre line are given at these distances ahead, m.
+    pub lookahead_m: Vec<f64>,
+    /// Beyond the lane's edge, m, the ego is off road.
+    pub off_road_m: f64,
+    pub time_limit_factor: f64,
+    pub reward: RouteReward,
+}
+
+impl Default for RouteConfig {
+    fn default() -> Self {
+        RouteConfig {
+            ego: EgoConfig::default(),
+            max_speed_kmh: 8.0,
+            step_s: 0.1,
+            action_repeat: 2,
+            steer_increment_rad: 0.1,
+            route_length_m: (80.0, 200.0),
+            pool_size: 200,
+            pool_seed: 7,
+            held_out_fraction: 0.25,
+            other_vehicles: 4,
+            other_speed_mps: (1.0, 4.0),
+            lookahead_m: vec![0.0, 2.0, 4.0, 6.0, 8.0, 11.0, 14.0, 18.0],
+            off_road_m: 1.5,
+            time_limit_factor: 2.0,
+            reward: RouteReward::default(),
+        }
+    }
+}
+
+impl RouteConfig {
+    fn validate(&self) -> Result<(), SimError> {
+        let (lo, hi) = self.route_length_m;
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        let problem = if !positive(self.max_speed_kmh) {
+            Some("max_speed_kmh must be positive")
+        } else if !positive(self.step_s) || self.action_repeat == 0 {
+            Some("step_s and action_repeat must be positive")
+        } else if !positive(lo) || hi.is_nan() || hi < lo {
+            Some("route_length_m must be (min, max) with 0 < min <= max")
+        } else if self.pool_size == 0 {
+            Some("pool_size must be positive")
+        } else if !(0.0..1.0).contains(&self.held_out_fraction) {
+            Some("held_out_fraction must be in [0, 1)")
+        } else if self.lookahead_m.is_empty() {
+            Some("lookahead_m needs at least one distance")
+        } else {
+            None
+        };
+        match problem {
+            Some(p) => Err(SimError::Config(format!("[agent.route]: {p}"))),
+            None => Ok(()),
+        }
+    }
+
+    fn max_speed_mps(&self) -> f64 {
+        self.max_speed_kmh / 3.6
+    }
+}
+
+/// Which routes of the pool episodes draw from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RouteSplit {
+    /// The routes training sees.
+    Training,
+    /// The routes training never sees.
+    HeldOut,
+}
+
+/// One planned route: its path and the lane width along it.
+#[derive(Debug)]
+struct PlannedRoute {
+    path: Path,
+    /// Lane width every metre along the path.
+    widths: Vec<f64>,
+    held_out: bool,
+}
+
+impl PlannedRoute {
+    fn half_width(&self, s: f64) -> f64 {
+        let i = (s.max(0.0) as usize).min(self.widths.len() - 1);
+        self.widths[i] / 2.0
+    }
+}
+
+/// The map and its route pool, shared by every environment on it.
+#[derive(Debug)]
+pub struct RouteSetup {
+    map: Arc<Map>,
+    config: RouteConfig,
+    routes: Vec<PlannedRoute>,
+}
+
+impl RouteSetup {
+    /// Plans the route pool on `map`. Fails when the map has too few routes of the length
+    /// asked for, or the configuration is invalid.
+    pub fn new(map: Arc<Map>, config: RouteConfig) -> Result<Arc<Self>, SimError> {
+        config.validate()?;
+        let router = Router::new(&map);
+        let mut lanes: Vec<LaneId> = map.lanes.keys().copied().collect();
+        lanes.sort();
+        if lanes.len() < 2 {
+            return Err(SimError::Config("the map has fewer than two lanes".into()));
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(config.pool_seed);
+        let (min_m, max_m) = config.route_length_m;
+        let mut routes = Vec::with_capacity(config.pool_size);
+        // Random lane pairs; most are too long or unreachable, so try many.
+        for _ in 0..config.pool_size * 200 {
+            if routes.len() == config.pool_size {
+                break;
+            }
+            let from = lanes[rng.random_range(0..lanes.len())];
+            let to = lanes[rng.random_range(0..lanes.len())];
+            if from == to {
+                continue;
+            }
+            let Ok(route) = router.route_lanes(from, to) else {
+                continue;
+            };
+            if !(min_m..=max_m).contains(&route.length_m) || has_u_turn(&route.waypoints) {
+                continue;
+            }
+            let points: Vec<Point> = route.waypoints.iter().map(|w| w.position).collect();
+            let speed = config.max_speed_mps();
+            let Some(path) = Path::from_geometry(
+                &[(PieceKey::Lane(from), points, speed)],
+                SpeedProfile::default(),
+            ) else {
+                continue;
+            };
+            let mut widths = Vec::with_capacity(route.waypoints.len());
+            let mut last = 3.5;
+            for w in &route.waypoints {
+                if let Some(lane) = w.lane.and_then(|l| map.lanes.get(&l)) {
+                    last = lane.width_m;
+                }
+                widths.push(last);
+            }
+            let held_out = (derive_seed(config.pool_seed, from.0 as u64, to.0 as u64) % 1000)
+                < (config.held_out_fraction * 1000.0) as u64;
+            routes.push(PlannedRoute {
+                path,
+                widths,
+                held_out,
+            });
+        }
+        let held_out = routes.iter().filter(|r| r.held_out).count();
+        if routes.len() < 4 || held_out == 0 || held_out == routes.len() {
+            return Err(SimError::Map(format!(
+                "the map gives only {} routes of {min_m}-{max_m} m ({held_out} held out); \
+                 import a larger map or widen route_length_m",
+                routes.len()
+            )));
+        }
+        Ok(Arc::new(RouteSetup {
+            map,
+            config,
+            routes,
+        }))
+    }
+
+    pub fn map(&self) -> &Arc<Map> {
+        &self.map
+    }
+
+    pub fn config(&self) -> &RouteConfig {
+        &self.config
+    }
+
+    /// Routes in the pool: (training, held out).
+    pub fn route_counts(&self) -> (usize, usize) {
+        let held_out = self.routes.iter().filter(|r| r.held_out).count();
+        (self.routes.len() - held_out, held_out)
+    }
+
+    pub fn observation_spec(&self) -> ObservationSpec {
+        ObservationSpec {
+            channels: 0,
+            height: 0,
+            width: 0,
+            scalars: self.config.lookahead_m.len() + 5,
+        }
+    }
+}
+
+/// Whether the route turns back on itself within a few metres (a U-turn through a
+/// junction, which the lane graph allows but a car with a 4 m turning radius cannot drive).
+fn has_u_turn(waypoints: &[maps::route::Waypoint]) -> bool {
+    const WINDOW_M: f64 = 10.0;
+    let mut j = 0;
+    for (i, w) in waypoints.iter().enumerate() {
+        j = j.max(i);
+        while j + 1 < waypoints.len() && waypoints[j + 1].s_m - w.s_m <= WINDOW_M {
+            j += 1;
+        }
+        let mut turned = 0.0;
+        for k in i..j {
+            turned += wrap_angle(waypoints[k + 1].heading_rad - waypoints[k].heading_rad);
+        }
+        if turned.abs() > 2.0 * std::f64::consts::FRAC_PI_3 {
+            return true;
+        }
+    }
+    false
+}
+
+/// Another road user: a box driving a route of the pool at a steady speed.
+#[derive(Debug, Clone)]
+struct Other {
+    route: usize,
+    s: f64,
+    speed: f64,
+    desired_speed: f64,
+    length: f64,
+    width: f64,
+}
+
+/// A vehicle as the car-following sees it.
+#[derive(Debug, Clone, Copy)]
+struct Mover {
+    route: usize,
+    s: f64,
+    position: Point,
+    heading: f64,
+    speed: f64,
+    length: f64,
+    width: f64,
+}
+
+/// How one episode went.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RouteSummary {
+    pub outcome: Outcome,
+    pub steps: usize,
+    pub episode_return: f64,
+    pub route_length_m: f64,
+    /// Share of the route driven when the episode ended.
+    pub completion: f64,
+    pub lane_rms_error_m: f64,
+    /// Share of decisions with the in-lane fraction at or above the threshold.
+    pub time_in_lane: f64,
+    pub mean_speed_kmh: f64,
+}
+
+impl TaskSummary for RouteSummary {
+    fn outcome(&self) -> Outcome {
+        self.outcome
+    }
+
+    fn episode_return(&self) -> f64 {
+        self.episode_return
+    }
+
+    fn metrics(&self) -> Vec<(&'static str, f64)> {
+        vec![
+            ("route completion %", 100.0 * self.completion),
+            ("lane-centre RMS m", self.lane_rms_error_m),
+            ("time in lane %", 100.0 * self.time_in_lane),
+            ("mean speed km/h", self.mean_speed_kmh),
+            ("route m", self.route_length_m),
+        ]
+    }
+}
+
+/// The route-following task as an [`Env`].
+#[derive(Debug)]
+pub struct RouteFollowing {
+    setup: Arc<RouteSetup>,
+    split: RouteSplit,
+    route: usize,
+    bike: Bicycle,
+    speed: f64,
+    steer: f64,
+    /// Arc length of the ego's centre along its route.
+    s: f64,
+    others: Vec<Other>,
+    time_s: f64,
+    time_limit_s: f64,
+    steps: usize,
+    episode_return: f64,
+    squared_error_sum: f64,
+    in_lane_steps: usize,
+    speed_sum: f64,
+    outcome: Option<Outcome>,
+    trajectory: Vec<Point>,
+}
+
+impl RouteFollowing {
+    pub fn new(setup: Arc<RouteSetup>) -> Self {
+        let wheelbase = setup.config.ego.wheelbase_m;
+        RouteFollowing {
+            setup,
+            split: RouteSplit::Training,
+            route: 0,
+            bike: Bicycle::at_centre(Point::new(0.0, 0.0), 0.0, wheelbase),
+            speed: 0.0,
+            steer: 0.0,
+            s: 0.0,
+            others: Vec::new(),
+            time_s: 0.0,
+            time_limit_s: 0.0,
+            steps: 0,
+            episode_return: 0.0,
+            squared_error_sum: 0.0,
+            in_lane_steps: 0,
+            speed_sum: 0.0,
+            outcome: None,
+            trajectory: Vec::new(),
+        }
+    }
+
+    /// Which routes the next episodes draw from.
+    pub fn set_split(&mut self, split: RouteSplit) {
+        self.split = split;
+    }
+
+    /// Whether the current episode's route is one of the held-out routes.
+    pub fn route_is_held_out(&self) -> bool {
+        self.route().held_out
+    }
+
+    fn route(&self) -> &PlannedRoute {
+        &self.setup.routes[self.route]
+    }
+
+    fn config(&self) -> &RouteConfig {
+        &self.setup.config
+    }
+
+    /// The ego's signed lateral offset from the route (left positive) and heading error.
+    fn deviation(&self) -> (f64, f64) {
+        let path = &self.route().path;
+        let centre = self.bike.centre();
+        let (p, heading) = path.pose_at(self.s);
+        let offset = centre.sub(p).dot(direction(heading).perp());
+        (offset, wrap_angle(self.bike.heading - heading))
+    }
+
+    /// The share of the ego's width inside its lane.
+    fn in_lane_fraction(&self) -> f64 {
+        let (offset, heading_error) = self.deviation();
+        let ego = &self.config().ego;
+        let half_extent = ego.width_m / 2.0 * heading_error.cos().abs()
+            + ego.length_m / 2.0 * heading_error.sin().abs();
+        let half_lane = self.route().half_width(self.s);
+        let inside = (offset + half_extent).min(half_lane) - (offset - half_extent).max(-half_lane);
+        (inside / (2.0 * half_extent)).clamp(0.0, 1.0)
+    }
+
+    fn other_pose(&self, other: &Other) -> (Point, f64) {
+        self.setup.routes[other.route].path.pose_at(other.s)
+    }
+
+    fn ego_box(&self) -> OrientedBox {
+        let ego = &self.config().ego;
+        OrientedBox::new(
+            self.bike.centre(),
+            self.bike.heading,
+            ego.length_m,
+            ego.width_m,
+        )
+    }
+
+    /// Every vehicle, the ego first (index 0), then the others.
+    fn vehicles(&self) -> Vec<Mover> {
+        let ego = &self.config().ego;
+        let mut all = Vec::with_capacity(self.others.len() + 1);
+        all.push(Mover {
+            route: self.route,
+            s: self.s,
+            position: self.bike.centre(),
+            heading: self.bike.heading,
+            speed: self.speed,
+            length: ego.length_m,
+            width: ego.width_m,
+        });
+        for o in &self.others {
+            let (position, heading) = self.other_pose(o);
+            all.push(Mover {
+                route: o.route,
+                s: o.s,
+                position,
+                heading,
+                speed: o.speed,
+                length: o.length,
+                width: o.width,
+            });
+        }
+        all
+    }
+
+    /// For vehicle `i` of `vehicles`: gap to and closing speed on the nearest vehicle ahead
+    /// (the leader of its IDM): ahead on the same route (measured along it, so curves do
+    /// not hide it), or in the straight corridor of its lane ahead (crossing traffic).
+    fn leader(vehicles: &[Mover], i: usize, half_lane: f64) -> Option<(f64, f64)> {
+        let me = &vehicles[i];
+        let axis = direction(me.heading);
+        vehicles
+            .iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .filter_map(|(_, other)| {
+                let half_lengths = (me.length + other.length) / 2.0;
+                if other.route == me.route && other.s > me.s {
+                    let gap = other.s - me.s - half_lengths;
+                    return (gap < 30.0).then_some((gap.max(0.0), me.speed - other.speed));
+                }
+                let rel = other.position.sub(me.position);
+                let ahead = rel.dot(axis);
+                let lateral = rel.dot(axis.perp()).abs();
+                (ahead > 0.0 && ahead < 30.0 && lateral < half_lane + other.width / 2.0).then(
+                    || {
+                        let along = other.speed * wrap_angle(other.heading - me.heading).cos();
+                        ((ahead - half_lengths).max(0.0), me.speed - along)
+                    },
+                )
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+    }
+
+    fn observation(&self) -> Observation {
+        let config = self.config();
+        let path = &self.route().path;
+        let centre = self.bike.centre();
+        let axis = direction(self.bike.heading);
+        let mut scalars = Vec::with_capacity(config.lookahead_m.len() + 5);
+        for &ahead in &config.lookahead_m {
+            let (p, _) = path.pose_at((self.s + ahead).min(path.length()));
+            // Lateral distance of the route in the ego's frame, over 5 m.
+            scalars.push((p.sub(centre).dot(axis.perp()) / 5.0) as f32);
+        }
+        scalars.push((self.route().half_width(self.s) / 2.0) as f32);
+        scalars.push((self.speed / config.max_speed_mps()) as f32);
+        scalars.push((self.steer / config.ego.max_steer_rad) as f32);
+        let nearest = self
+            .others
+            .iter()
+            .map(|o| self.other_pose(o).0.sub(centre))
+            .filter(|rel| rel.norm() < NEAR_M)
+            .min_by(|a, b| a.norm().total_cmp(&b.norm()));
+        let (x, y) = nearest.map_or((1.0, 0.0), |rel| {
+            (rel.dot(axis) / NEAR_M, rel.dot(axis.perp()) / NEAR_M)
+        });
+        scalars.push(x as f32);
+        scalars.push(y as f32);
+        Observation {
+            layers: Vec::new(),
+            scalars,
+        }
+    }
+
+    fn summary_now(&self) -> RouteSummary {
+        let length = self.route().path.length();
+        let steps = self.steps.max(1) as f64;
+        RouteSummary {
+            outcome: self.outcome.unwrap_or(Outcome::TimeOver),
+            steps: self.steps,
+            episode_return: self.episode_return,
+            route_length_m: length,
+            completion: if self.outcome == Some(Outcome::Reached) {
+                1.0
+            } else {
+                (self.s / length).clamp(0.0, 1.0)
+            },
+            lane_rms_error_m: (self.squared_error_sum / steps).sqrt(),
+            time_in_lane: self.in_lane_steps as f64 / steps,
+            mean_speed_kmh: 3.6 * self.speed_sum / steps,
+        }
+    }
+
+    /// One simulation step of everyone; the outcome if the episode ended.
+    fn advance(&mut self) -> Option<Outcome> {
+        let config = self.setup.config.clone();
+        let dt = config.step_s;
+        // Everyone drives by the IDM behind whoever is ahead in their lane, the ego included.
+        let driver = Driver::new(&DriverConfig::default(), 0.5);
+        let vehicles = self.vehicles();
+        let accels: Vec<f64> = (0..vehicles.len())
+            .map(|i| {
+                let (half_lane, desired) = if i == 0 {
+                    (self.route().half_width(self.s), config.max_speed_mps())
+                } else {
+                    let o = &self.others[i - 1];
+                    (self.setup.routes[o.route].half_width(o.s), o.desired_speed)
+                };
+                driver.idm(
+                    vehicles[i].speed,
+                    desired,
+                    Self::leader(&vehicles, i, half_lane),
+                )
+            })
+            .collect();
+        for (o, &a) in self.others.iter_mut().zip(&accels[1..]) {
+            let (speed, ds) = advance_speed(o.speed, a.clamp(-8.0, 3.0), dt);
+            o.speed = speed;
+            o.s += ds;
+        }
+        // Others leave at the end of their route.
+        let routes = &self.setup.routes;
+        self.others
+            .retain(|o| o.s < routes[o.route].path.length() - 0.5);
+        let (speed, travelled) = advance_speed(
+            self.speed,
+            accels[0].clamp(-config.ego.max_brake_mps2, config.ego.max_accel_mps2),
+            dt,
+        );
+        self.bike.advance(travelled, self.steer);
+        self.speed = speed;
+        self.time_s += dt;
+        let path = &self.setup.routes[self.route].path;
+        let (s, distance) = path.project(self.bike.centre(), self.s, 1.0, travelled + 2.0);
+        self.s = s.max(self.s);
+        let ego_box = self.ego_box();
+        let hit = self.others.iter().any(|o| {
+            let (p, h) = self.other_pose(o);
+            OrientedBox::new(p, h, o.length, o.width).overlaps(&ego_box)
+        });
+        if hit {
+            return Some(Outcome::Crashed);
+        }
+        if distance > self.route().half_width(self.s) + config.off_road_m {
+            return Some(Outcome::OffRoad);
+        }
+        if self.s >= path.length() - 0.5 {
+            return Some(Outcome::Reached);
+        }
+        (self.time_s >= self.time_limit_s).then_some(Outcome::TimeOver)
+    }
+
+    /// Puts other vehicles on routes of the pool that pass near the ego's, and on the
+    /// ego's route ahead of it.
+    fn place_others(&mut self, rng: &mut ChaCha8Rng) {
+        let config = &self.setup.config;
+        let start = self.bike.centre();
+        let near: Vec<usize> = (0..self.setup.routes.len())
+            .filter(|&r| r != self.route)
+            .filter(|&r| {
+                let path = &self.setup.routes[r].path;
+                path.outline().iter().any(|p| p.distance(start) < 60.0)
+            })
+            .collect();
+        let (lo, hi) = config.other_speed_mps;
+        let ego = config.ego;
+        for k in 0..config.other_vehicles {
+            let own = k % 2 == 1 || near.is_empty();
+            let route = if own {
+                self.route
+            } else {
+                near[rng.random_range(0..near.len())]
+            };
+            let length = self.setup.routes[route].path.length();
+            let s = if own {
+                // Ahead of the ego, slower than it: it must follow, not drive through.
+                (rng.random_range(15.0..40.0) + 12.0 * k as f64).min(length - 1.0)
+            } else {
+                rng.random_range(0.0..length)
+            };
+            let speed = if own {
+                rng.random_range(lo..hi).min(0.6 * config.max_speed_mps())
+            } else {
+                rng.random_range(lo..hi)
+            };
+            let other = Other {
+                route,
+                s,
+                speed,
+                desired_speed: speed,
+                length: ego.length_m,
+                width: ego.width_m,
+            };
+            let (p, h) = self.other_pose(&other);
+            let clear = OrientedBox::new(p, h, other.length + 6.0, other.width + 2.0);
+            if !clear.overlaps(&self.ego_box()) {
+                self.others.push(other);
+            }
+        }
+    }
+}
+
+impl Env for RouteFollowing {
+    fn observation_spec(&self) -> ObservationSpec {
+        self.setup.observation_spec()
+    }
+
+    fn action_count(&self) -> usize {
+        ACTION_NAMES.len()
+    }
+
+    fn action_names(&self) -> &'static [&'static str] {
+        &ACTION_NAMES
+    }
+
+    fn reset(&mut self, seed: u64) -> Observation {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let want_held_out = self.split == RouteSplit::HeldOut;
+        let candidates: Vec<usize> = (0..self.setup.routes.len())
+            .filter(|&r| self.setup.routes[r].held_out == want_held_out)
+            .collect();
+        self.route = candidates[rng.random_range(0..candidates.len())];
+        let (p, heading) = self.route().path.pose_at(0.0);
+        self.bike = Bicycle::at_centre(p, heading, self.config().ego.wheelbase_m);
+        self.speed = 0.0;
+        self.steer = 0.0;
+        self.s = 0.0;
+        self.others.clear();
+        self.place_others(&mut rng);
+        self.time_s = 0.0;
+        self.time_limit_s = self.config().time_limit_factor * self.route().path.length()
+            / self.config().max_speed_mps()
+            + 10.0;
+        self.steps = 0;
+        self.episode_return = 0.0;
+        self.squared_error_sum = 0.0;
+        self.in_lane_steps = 0;
+        self.speed_sum = 0.0;
+        self.outcome = None;
+        self.trajectory.clear();
+        self.trajectory.push(self.bike.centre());
+        self.observation()
+    }
+
+    fn step(&mut self, action: usize) -> Step {
+        if let Some(outcome) = self.outcome {
+            return Step {
+                observation: self.observation(),
+                reward: 0.0,
+                outcome: Some(outcome),
+            };
+        }
+        let config = self.setup.config.clone();
+        let change = match action {
+            LEFT => config.steer_increment_rad,
+            RIGHT => -config.steer_increment_rad,
+            _ => 0.0,
+        };
+        let max_steer = config.ego.max_steer_rad;
+        let new_steer = (self.steer + change).clamp(-max_steer, max_steer);
+        let changed = new_steer != self.steer;
+        self.steer = new_steer;
+        let mut outcome = None;
+        for _ in 0..config.action_repeat {
+            outcome = self.advance();
+            if outcome.is_some() {
+                break;
+            }
+        }
+        self.steps += 1;
+        self.trajectory.push(self.bike.centre());
+        let (offset, _) = self.deviation();
+        self.squared_error_sum += offset * offset;
+        self.speed_sum += self.speed;
+        let fraction = self.in_lane_fraction();
+        if fraction >= config.reward.in_lane_threshold {
+            self.in_lane_steps += 1;
+        }
+        let mut reward = if fraction < config.reward.in_lane_threshold {
+            config.reward.below_lane_penalty
+        } else {
+            self.speed / config.max_speed_mps() + fraction
+        };
+        if changed {
+            reward += config.reward.steer_change_penalty;
+        }
+        if matches!(outcome, Some(Outcome::Crashed | Outcome::OffRoad)) {
+            reward += config.reward.terminal_penalty;
+        }
+        self.outcome = outcome;
+        self.episode_return += reward;
+        Step {
+            observation: self.observation(),
+            reward: reward as f32,
+            outcome,
+        }
+    }
+}
+
+impl Task for RouteFollowing {
+    type Summary = RouteSummary;
+
+    fn summary(&self) -> RouteSummary {
+        self.summary_now()
+    }
+
+    fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
+        let mut baselines = constant_baselines::<Self>(&ACTION_NAMES);
+        let rule: PolicyFactory<Self> = Box::new(|| Box::new(PursuitRule));
+        baselines.push(("rule: pure pursuit".to_owned(), rule));
+        baselines
+    }
+
+    fn scene(&self) -> Option<Scene<'_>> {
+        let ego = &self.config().ego;
+        let mut actors = vec![Actor {
+            id: 0,
+            kind: ActorKind::Car,
+            position: self.bike.centre(),
+            heading_rad: self.bike.heading,
+            speed_mps: self.speed,
+            length_m: ego.length_m,
+            width_m: ego.width_m,
+            lane: None,
+            aggressiveness: None,
+        }];
+        for (i, o) in self.others.iter().enumerate() {
+            let (p, h) = self.other_pose(o);
+            actors.push(Actor {
+                id: i as u32 + 1,
+                kind: ActorKind::Car,
+                position: p,
+                heading_rad: h,
+                speed_mps: o.speed,
+                length_m: o.length,
+                width_m: o.width,
+                lane: None,
+                aggressiveness: None,
+            });
+        }
+        Some(Scene {
+            map: &self.setup.map,
+            time_s: self.time_s,
+            actors,
+            ego: 0,
+            ego_path: self.route().path.outline(),
+        })
+    }
+
+    fn trajectory(&self) -> &[Point] {
+        &self.trajectory
+    }
+}
+
+/// Pure pursuit on the route, turned into steering increments: an upper bound that reads
+/// the route exactly.
+#[derive(Debug, Clone, Copy)]
+pub struct PursuitRule;
+
+impl PursuitRule {
+    fn decide(env: &RouteFollowing) -> usize {
+        let config = env.config();
+        let lookahead = 3.0 + 0.5 * env.speed;
+        let path = &env.route().path;
+        let (target, _) = path.pose_at((env.s + lookahead).min(path.length()));
+        let wanted = env.bike.pure_pursuit(target, config.ego.max_steer_rad);
+        let half_step = config.steer_increment_rad / 2.0;
+        if wanted > env.steer + half_step {
+            LEFT
+        } else if wanted < env.steer - half_step {
+            RIGHT
+        } else {
+            FORWARD
+        }
+    }
+}
+
+impl TaskPolicy<RouteFollowing> for PursuitRule {
+    fn act(&mut self, envs: &[&RouteFollowing], _: &[&Observation], actions: &mut Vec<usize>) {
+        actions.clear();
+        actions.extend(envs.iter().map(|env| Self::decide(env)));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tasks::run_episodes;
+
+    /// The bundled campus (ODbL, in the repository), with a small route pool.
+    fn campus() -> Arc<RouteSetup> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../data/osm/northwestern_nu.osm.pbf");
+        let map = maps::build::import_file(&path, &maps::ImportOptions::default())
+            .expect("the bundled campus imports");
+        let config = RouteConfig {
+            pool_size: 24,
+            ..RouteConfig::default()
+        };
+        RouteSetup::new(Arc::new(map), config).expect("the campus has routes")
+    }
+
+    fn env(setup: &Arc<RouteSetup>, split: RouteSplit) -> RouteFollowing {
+        let mut env = RouteFollowing::new(Arc::clone(setup));
+        env.set_split(split);
+        env
+    }
+
+    #[test]
+    fn route_following_on_the_campus() {
+        let setup = campus();
+        let (training, held_out) = setup.route_counts();
+        assert!(training > 0 && held_out > 0, "{training} / {held_out}");
+
+        // Splits: held-out routes only in held-out episodes, never in training ones.
+        let mut e = env(&setup, RouteSplit::Training);
+        for seed in 0..20 {
+            e.reset(seed);
+            assert!(!e.route_is_held_out());
+        }
+        let mut e = env(&setup, RouteSplit::HeldOut);
+        let first = e.reset(3);
+        assert!(e.route_is_held_out());
+        // At the start the ego sits on the route's centre line, aligned with it.
+        assert!(e.in_lane_fraction() > 0.999, "{}", e.in_lane_fraction());
+        assert!(first.scalars[0].abs() < 1e-6, "{:?}", first.scalars);
+        assert_eq!(first.scalars.len(), setup.observation_spec().scalars);
+
+        let seeds: Vec<u64> = (0..12).collect();
+        let run = |policy: usize| {
+            let baselines = RouteFollowing::baselines();
+            run_episodes(
+                || env(&setup, RouteSplit::HeldOut),
+                &baselines[policy].1,
+                &seeds,
+                4,
+            )
+        };
+        // Pure pursuit (the rule, last) finishes most routes near the lane centre; holding
+        // the wheel turned left (index 1) leaves the road every time.
+        let rule = run(3);
+        let reached = rule
+            .iter()
+            .filter(|s| s.outcome == Outcome::Reached)
+            .count();
+        assert!(reached >= 9, "the rule reached {reached} of 12: {rule:?}");
+        assert!(rule.iter().all(|s| s.lane_rms_error_m < 1.0), "{rule:?}");
+        let left = run(1);
+        assert!(
+            left.iter().all(|s| s.outcome == Outcome::OffRoad),
+            "{left:?}"
+        );
+        assert!(left.iter().all(|s| s.completion < 0.5));
+
+        // Same seed, same episode.
+        assert_eq!(run(3), rule);
+    }
+}

@@ -1,0 +1,120 @@
+//! `agent train` and `agent eval` on the tasks other than roundabout insertion, with tiny
+//! budgets: the generic evaluation writes the agent and every baseline per condition, and
+//! the task's metrics (issue 6). Runs on the bundled campus, so it never skips.
+
+#![allow(clippy::unwrap_used)]
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{assert_success, read_json, run, stderr};
+
+fn bundled(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data/osm")
+        .join(name)
+}
+
+#[test]
+fn route_following_trains_and_evaluates_with_its_baselines() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("route.toml");
+    std::fs::write(
+        &config,
+        "[agent.dqn]\ntotal_steps = 600\nwarmup_steps = 100\nenvs = 2\nbatch_size = 8\n\
+         replay_capacity = 1000\n[agent.dqn.network]\nconvolutions = []\nhidden = [16]\n\
+         [agent.route]\npool_size = 16\n",
+    )
+    .unwrap();
+    let map = bundled("northwestern_nu.osm.pbf");
+    let agent = dir.path().join("agent");
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "--config".as_ref(),
+        config.as_os_str(),
+        "agent".as_ref(),
+        "train".as_ref(),
+        "--task".as_ref(),
+        "route-following".as_ref(),
+        "--map".as_ref(),
+        map.as_os_str(),
+        "--out".as_ref(),
+        agent.as_os_str(),
+    ]);
+    assert_success(&out, "agent train --task route-following");
+    let task = read_json(&agent.join("task.json"));
+    assert_eq!(task["task"], "route-following");
+    assert_eq!(task["config"]["pool_size"], 16);
+
+    let eval = dir.path().join("eval");
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "agent".as_ref(),
+        "eval".as_ref(),
+        "--agent".as_ref(),
+        agent.as_os_str(),
+        "--episodes".as_ref(),
+        "3".as_ref(),
+        "--out".as_ref(),
+        eval.as_os_str(),
+    ]);
+    assert_success(&out, "agent eval of a route-following agent");
+    let report = read_json(&eval.join("eval.json"));
+    let conditions = report["conditions"].as_array().unwrap();
+    assert_eq!(conditions.len(), 2, "held-out and training routes");
+    assert_eq!(conditions[0]["condition"], "held-out routes");
+    for condition in conditions {
+        let policies = condition["policies"].as_array().unwrap();
+        let names: Vec<&str> = policies
+            .iter()
+            .map(|p| p["policy"].as_str().unwrap())
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "agent",
+                "always forward",
+                "always forward left",
+                "always forward right",
+                "rule: pure pursuit"
+            ]
+        );
+        for p in policies {
+            assert_eq!(p["episodes"], 3);
+            let fractions: f64 = ["reaches", "crashes", "off_roads", "time_overs"]
+                .iter()
+                .map(|k| p[k].as_f64().unwrap())
+                .sum();
+            assert!((fractions - 1.0).abs() < 1e-9, "{p}");
+            let metrics = p["metrics"].as_array().unwrap();
+            assert_eq!(metrics[0][0], "route completion %");
+        }
+    }
+    let table = std::fs::read_to_string(eval.join("eval.md")).unwrap();
+    assert!(table.contains("| rule: pure pursuit | 3 |"), "{table}");
+}
+
+#[test]
+fn a_map_task_without_a_map_is_one_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "agent".as_ref(),
+        "train".as_ref(),
+        "--task".as_ref(),
+        "route-following".as_ref(),
+        "--out".as_ref(),
+        dir.path().join("agent").as_os_str(),
+    ]);
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("--map is required for the route-following task"),
+        "{err}"
+    );
+    assert!(!dir.path().join("agent").exists());
+}
