@@ -53,6 +53,9 @@ pub enum Task {
     /// Follow a planned route over an imported campus, keeping in lane among other traffic
     /// (the AIT / MTSU studies).
     RouteFollowing,
+    /// Pass a parked vehicle or yield to a crossing one on a straight synthetic road (the
+    /// Thai CARLA study); needs no map.
+    ObstacleAvoidance,
 }
 
 impl Task {
@@ -157,6 +160,8 @@ pub struct AgentConfig {
     pub task: InsertionConfig,
     /// Route following.
     pub route: sim::tasks::route::RouteConfig,
+    /// Obstacle avoidance.
+    pub obstacle: sim::tasks::obstacle::ObstacleConfig,
 }
 
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same
