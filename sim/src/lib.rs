@@ -23,6 +23,7 @@ pub mod roundabout;
 pub mod scene;
 pub mod seed;
 pub mod spatial;
+pub mod synthetic;
 pub mod tasks;
 pub mod world;
 

@@ -4,6 +4,7 @@
 //! of the pipeline look at, so a recorded real log projected into the map frame renders
 //! exactly like the simulator. Positions are in the map's metric frame (x east, y north).
 
+use maps::geometry::closest_on_segment;
 use maps::{LaneId, Map, Point};
 use serde::{Deserialize, Serialize};
 
@@ -91,6 +92,53 @@ impl OrientedBox {
     pub fn bounding_radius(&self) -> f64 {
         self.half_length.hypot(self.half_width)
     }
+
+    /// Distance from `origin` along the unit direction `dir` to where the ray enters the
+    /// box, if that is within `max` (0 when `origin` is inside). Slab test in the box frame.
+    pub fn ray_distance(&self, origin: Point, dir: Point, max: f64) -> Option<f64> {
+        let perp = self.axis.perp();
+        let rel = origin.sub(self.centre);
+        let (mut enter, mut exit) = (0.0_f64, max);
+        for (axis, half) in [(self.axis, self.half_length), (perp, self.half_width)] {
+            let (o, d) = (rel.dot(axis), dir.dot(axis));
+            if d.abs() < 1e-12 {
+                // Parallel to this slab: inside it everywhere or nowhere.
+                if o.abs() > half {
+                    return None;
+                }
+                continue;
+            }
+            let (t1, t2) = ((-half - o) / d, (half - o) / d);
+            enter = enter.max(t1.min(t2));
+            exit = exit.min(t1.max(t2));
+            if enter > exit {
+                return None;
+            }
+        }
+        Some(enter)
+    }
+
+    /// The shortest distance between two boxes, 0 when they overlap. For disjoint convex
+    /// polygons it is attained between a corner of one and an edge of the other.
+    pub fn distance(&self, other: &OrientedBox) -> f64 {
+        if self.overlaps(other) {
+            return 0.0;
+        }
+        let corner_to_edges = |a: &OrientedBox, b: &OrientedBox| {
+            let edges = b.corners();
+            a.corners()
+                .iter()
+                .flat_map(|&p| {
+                    (0..4).map(move |i| {
+                        closest_on_segment(edges[i], edges[(i + 1) % 4], p)
+                            .0
+                            .distance(p)
+                    })
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        corner_to_edges(self, other).min(corner_to_edges(other, self))
+    }
 }
 
 /// A map and its road users at one instant, from the point of view of one of them (the
@@ -134,5 +182,33 @@ mod tests {
         let k = a.corners();
         assert_eq!(k[0], Point::new(2.0, -1.0));
         assert_eq!(k[2], Point::new(-2.0, 1.0));
+    }
+
+    #[test]
+    fn rays_enter_boxes_and_boxes_have_gaps() {
+        let b = OrientedBox::new(Point::new(10.0, 0.0), 0.0, 4.0, 2.0);
+        let east = Point::new(1.0, 0.0);
+        let hit = b.ray_distance(Point::new(0.0, 0.5), east, 40.0);
+        assert!((hit.unwrap_or(f64::NAN) - 8.0).abs() < 1e-9, "{hit:?}");
+        // Passing beside it, pointing away, or out of range.
+        assert_eq!(b.ray_distance(Point::new(0.0, 1.5), east, 40.0), None);
+        assert_eq!(
+            b.ray_distance(Point::new(0.0, 0.0), east.scale(-1.0), 40.0),
+            None
+        );
+        assert_eq!(b.ray_distance(Point::new(0.0, 0.0), east, 7.0), None);
+        // Diagonal ray from (6, -2): misses the bottom face (x = 7 there), enters the rear
+        // face at (8, 0).
+        let diag = Point::new(1.0, 1.0).normalized();
+        let d = b.ray_distance(Point::new(8.0, 0.0).sub(Point::new(2.0, 2.0)), diag, 40.0);
+        assert!(
+            (d.unwrap_or(f64::NAN) - 2.0 * 2f64.sqrt()).abs() < 1e-9,
+            "{d:?}"
+        );
+        // Box to box: 1 m apart along x, then overlapping.
+        let c = OrientedBox::new(Point::new(15.0, 0.0), 0.0, 4.0, 2.0);
+        assert!((b.distance(&c) - 1.0).abs() < 1e-9);
+        let e = OrientedBox::new(Point::new(14.0, 0.5), 0.3, 4.0, 2.0);
+        assert_eq!(b.distance(&e), 0.0);
     }
 }

@@ -8,6 +8,7 @@
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
 
 pub mod insertion;
+pub mod obstacle;
 pub mod ring_driving;
 pub mod roundabouts;
 pub mod route;
@@ -24,6 +25,7 @@ pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
     RoundaboutInsertion,
 };
+pub use obstacle::{ObstacleAvoidance, ObstacleConfig, ObstacleSetup, ObstacleSummary};
 pub use ring_driving::{
     PursuitRule, RingDriving, RingDrivingConfig, RingDrivingSetup, RingDrivingSummary,
     RingRewardConfig, SteerAction,
@@ -214,6 +216,7 @@ pub fn task_table(rows: &[(String, TaskResult)]) -> String {
         out.push_str(&format!(" {name} |"));
     }
     out.push_str("\n|");
+    // Seven fixed columns (policy to mean return), then the metrics.
     out.push_str(&" --- |".repeat(7 + metric_names.len()));
     out.push('\n');
     for (policy, r) in rows {

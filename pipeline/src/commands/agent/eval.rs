@@ -17,7 +17,7 @@ use sim::tasks::{Task as _, TaskResult, run_episodes, task_table};
 use sim::world::TrafficLevel;
 use sim::{Env as _, ObservationSpec};
 
-use super::tasks::{GenericTask, Insertion, RoundaboutDriving, Route, TaskKind};
+use super::tasks::{GenericTask, Insertion, Obstacle, RoundaboutDriving, Route, TaskKind};
 use super::train::{models_error, read_task, write_json};
 use super::{EvalArgs, Task, TaskRecord, episodes};
 use crate::commands::Context;
@@ -74,6 +74,7 @@ pub fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         Task::RoundaboutInsertion => eval_insertion(ctx, args, agent, map, progress),
         Task::RouteFollowing => eval_task::<Route>(ctx, args, agent, map, progress),
         Task::RoundaboutDriving => eval_task::<RoundaboutDriving>(ctx, args, agent, map, progress),
+        Task::ObstacleAvoidance => eval_task::<Obstacle>(ctx, args, agent, map, progress),
     }
 }
 

@@ -56,6 +56,9 @@ pub enum Task {
     RouteFollowing,
     /// Steer along a route through a roundabout for 10 s (the ITS study).
     RoundaboutDriving,
+    /// Pass a parked vehicle or yield to a crossing one on a straight synthetic road (the
+    /// Thai CARLA study); needs no map.
+    ObstacleAvoidance,
 }
 
 impl Task {
@@ -162,6 +165,8 @@ pub struct AgentConfig {
     pub route: sim::tasks::route::RouteConfig,
     /// `[agent.roundabout_driving]`: the roundabout-driving task's settings.
     pub roundabout_driving: sim::tasks::RingDrivingConfig,
+    /// Obstacle avoidance.
+    pub obstacle: sim::tasks::obstacle::ObstacleConfig,
 }
 
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same

@@ -18,6 +18,7 @@ use maps::Map;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use sim::Env;
+use sim::tasks::obstacle::{ObstacleAvoidance, ObstacleConfig, ObstacleSetup, Scenario};
 use sim::tasks::route::{RouteConfig, RouteFollowing, RouteSetup, RouteSplit};
 use sim::tasks::{
     InsertionConfig, InsertionSetup, RingDriving, RingDrivingConfig, RingDrivingSetup,
@@ -275,6 +276,74 @@ impl GenericTask for Route {
             RouteSplit::Training
         } else {
             RouteSplit::HeldOut
+        });
+        env
+    }
+}
+
+/// Obstacle avoidance (the Thai CARLA study), on its own synthetic road: `--map` is not used.
+#[derive(Debug)]
+pub struct Obstacle;
+
+impl TaskKind for Obstacle {
+    type Env = ObstacleAvoidance;
+    type Config = ObstacleConfig;
+    type Setup = ObstacleSetup;
+
+    fn config(agent: &AgentConfig) -> ObstacleConfig {
+        agent.obstacle.clone()
+    }
+
+    fn setup(_: Option<&Path>, config: &ObstacleConfig) -> Result<Arc<ObstacleSetup>> {
+        ObstacleSetup::new(config.clone()).map_err(|e| {
+            CliError::new(
+                format!("cannot set up obstacle avoidance: {e}"),
+                "check the [agent.obstacle] table of the config",
+            )
+            .into()
+        })
+    }
+
+    fn map(setup: &ObstacleSetup) -> Option<&Map> {
+        Some(setup.map())
+    }
+
+    fn train_env(setup: &Arc<ObstacleSetup>, _: TrafficLevel) -> ObstacleAvoidance {
+        ObstacleAvoidance::new(Arc::clone(setup))
+    }
+
+    fn record_episodes(
+        rec: &Stream,
+        setup: &Arc<ObstacleSetup>,
+        policy: &QPolicy,
+        _: TrafficLevel,
+        count: usize,
+        seed: u64,
+    ) -> Result<()> {
+        // Mixed scenarios: the recorded episodes show both kinds of obstacle.
+        let make_env = || {
+            let mut env = ObstacleAvoidance::new(Arc::clone(setup));
+            env.set_scenario(Scenario::Mixed);
+            env
+        };
+        episodes::record_task(rec, make_env, policy, count, seed)
+    }
+}
+
+const STATIC_OBSTACLE: &str = "static obstacle";
+const CROSSING_OBSTACLE: &str = "crossing obstacle";
+
+impl GenericTask for Obstacle {
+    fn conditions(_: &[TrafficLevel]) -> Vec<String> {
+        vec![STATIC_OBSTACLE.to_owned(), CROSSING_OBSTACLE.to_owned()]
+    }
+
+    fn eval_env(setup: &Arc<ObstacleSetup>, condition: &str) -> ObstacleAvoidance {
+        let mut env = ObstacleAvoidance::new(Arc::clone(setup));
+        env.set_scenario(if condition == CROSSING_OBSTACLE {
+            Scenario::Crossing
+        } else {
+            Scenario::Static
         });
         env
     }

@@ -20,7 +20,7 @@ use models::dqn::{
 use serde::Serialize;
 use sim::world::TrafficLevel;
 
-use super::tasks::{Insertion, RoundaboutDriving, Route, TaskKind, task_config};
+use super::tasks::{Insertion, Obstacle, RoundaboutDriving, Route, TaskKind, task_config};
 use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
 use crate::commands::Context;
 use crate::error::CliError;
@@ -39,6 +39,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         Task::RoundaboutInsertion => train_task::<Insertion>(ctx, args),
         Task::RouteFollowing => train_task::<Route>(ctx, args),
         Task::RoundaboutDriving => train_task::<RoundaboutDriving>(ctx, args),
+        Task::ObstacleAvoidance => train_task::<Obstacle>(ctx, args),
     }
 }
 
