@@ -85,8 +85,12 @@ impl Action {
 /// The study's steering bound, degrees.
 pub const MAX_STEER_DEG: f64 = 35.0;
 
-/// Number of scalar inputs.
+/// Number of scalar inputs: the study's six.
 pub const SCALARS: usize = 6;
+
+/// Extra inputs with [`ObstacleConfig::motion_inputs`]: how the LiDAR return moved since the
+/// last decision, laterally and longitudinally.
+pub const MOTION_SCALARS: usize = 2;
 
 /// Which obstacles the episodes get.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -207,6 +211,10 @@ pub struct ObstacleConfig {
     pub crossing_timing_s: f64,
     pub obstacle_length_m: f64,
     pub obstacle_width_m: f64,
+    /// Adds two inputs to the study's six: the LiDAR return's lateral and longitudinal rate
+    /// of change since the last decision. One return says where the obstacle is, not where it
+    /// goes: without them a crossing vehicle right ahead looks like a parked one.
+    pub motion_inputs: bool,
 }
 
 impl Default for ObstacleConfig {
@@ -229,6 +237,7 @@ impl Default for ObstacleConfig {
             accel_mps2: 2.0,
             brake_mps2: 8.0,
             stop_speed_mps: 0.1,
+            motion_inputs: false,
             static_distance_m: (30.0, 70.0),
             static_lateral_m: 0.5,
             crossing_distance_m: (30.0, 70.0),
@@ -490,6 +499,8 @@ pub struct ObstacleAvoidance {
     speed_mps: f64,
     obstacle: Option<(ObstacleKind, Actor)>,
     lidar: Option<LidarHit>,
+    /// The return at the previous decision (for the motion inputs).
+    previous_lidar: Option<LidarHit>,
     time_s: f64,
     steps: usize,
     episode_return: f64,
@@ -515,6 +526,7 @@ impl ObstacleAvoidance {
             speed_mps: 0.0,
             obstacle: None,
             lidar: None,
+            previous_lidar: None,
             time_s: 0.0,
             steps: 0,
             episode_return: 0.0,
@@ -589,6 +601,7 @@ impl ObstacleAvoidance {
 
     fn rescan(&mut self) {
         let boxes: Vec<OrientedBox> = self.obstacle.iter().map(|(_, a)| a.footprint()).collect();
+        self.previous_lidar = self.lidar.take();
         self.lidar = scan(&self.config.lidar, self.sensor(), self.ego.heading, &boxes);
     }
 
@@ -601,7 +614,7 @@ impl ObstacleAvoidance {
                 h.lateral_m / c.lidar.window_lateral_m,
             )
         });
-        let scalars = [
+        let mut scalars = vec![
             (self.distance_to_destination() / c.destination_m).clamp(-1.0, 1.5),
             (centre.y / c.lane_width_m).clamp(-1.5, 1.5),
             (self.ego.heading / 30f64.to_radians()).clamp(-3.0, 3.0),
@@ -609,6 +622,18 @@ impl ObstacleAvoidance {
             lon,
             lat,
         ];
+        if c.motion_inputs {
+            let (lateral_rate, longitudinal_rate) = match (self.lidar, self.previous_lidar) {
+                (Some(now), Some(before)) => (
+                    (now.lateral_m - before.lateral_m) / c.policy_step_s,
+                    (now.longitudinal_m - before.longitudinal_m) / c.policy_step_s,
+                ),
+                _ => (0.0, 0.0),
+            };
+            // Over 5 m/s (a brisk crossing) and over the cruise speed.
+            scalars.push((lateral_rate / 5.0).clamp(-2.0, 2.0));
+            scalars.push((longitudinal_rate / c.cruise_speed_mps()).clamp(-2.0, 2.0));
+        }
         Observation {
             layers: Vec::new(),
             scalars: scalars.iter().map(|&v| v as f32).collect(),
@@ -716,7 +741,12 @@ impl Env for ObstacleAvoidance {
             channels: 0,
             height: 0,
             width: 0,
-            scalars: SCALARS,
+            scalars: SCALARS
+                + if self.config.motion_inputs {
+                    MOTION_SCALARS
+                } else {
+                    0
+                },
         }
     }
 
@@ -791,6 +821,7 @@ impl Env for ObstacleAvoidance {
         self.outcome = None;
         self.trajectory.clear();
         self.trajectory.push(self.ego.centre());
+        self.lidar = None;
         self.rescan();
         self.observation()
     }
@@ -1022,6 +1053,50 @@ mod tests {
             hit.is_some_and(|h| h.lateral_m <= 3.0 && h.lateral_m >= 2.5),
             "{hit:?}"
         );
+    }
+
+    #[test]
+    fn motion_inputs_tell_a_crossing_vehicle_from_a_parked_one() {
+        let lateral_rates = |scenario: Scenario| -> Vec<f32> {
+            let setup = ObstacleSetup::new(ObstacleConfig {
+                scenario,
+                motion_inputs: true,
+                ..ObstacleConfig::default()
+            });
+            #[allow(clippy::unwrap_used)]
+            let mut env = ObstacleAvoidance::new(setup.unwrap());
+            assert_eq!(env.observation_spec().scalars, SCALARS + MOTION_SCALARS);
+            let first = env.reset(5);
+            assert_eq!(
+                first.scalars[SCALARS..],
+                [0.0, 0.0],
+                "no motion before a second return"
+            );
+            // Drive on until the obstacle is in view, then brake so the ego stays behind it
+            // while a crossing one passes in front.
+            let mut seen = false;
+            let mut rates = Vec::new();
+            for _ in 0..100 {
+                let action = if seen {
+                    Action::Brake
+                } else {
+                    Action::Straight
+                };
+                let step = env.step(action as usize);
+                seen |= step.observation.scalars[4] < 1.0;
+                rates.push(step.observation.scalars[SCALARS]);
+                if step.outcome.is_some() {
+                    break;
+                }
+            }
+            assert!(seen, "{scenario:?}: the obstacle came into view");
+            rates
+        };
+        let parked = lateral_rates(Scenario::Static);
+        let crossing = lateral_rates(Scenario::Crossing);
+        assert!(parked.iter().all(|r| r.abs() < 0.02), "{parked:?}");
+        // 1.5-3 m/s across the road over 5 m/s (once in view).
+        assert!(crossing.iter().any(|r| r.abs() > 0.2), "{crossing:?}");
     }
 
     #[test]
