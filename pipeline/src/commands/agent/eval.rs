@@ -23,6 +23,7 @@ use super::{EvalArgs, Task, TaskRecord, episodes};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
+use crate::recording::Stream;
 use crate::ui::Progress;
 
 pub const EVAL_JSON: &str = "eval.json";
@@ -219,15 +220,9 @@ fn eval_insertion(
         markdown_table(&by_condition(&rows, conditions.len()))
     );
 
-    let dir = AtomicDir::create(&out, EVAL_MARKERS)?;
-    write_json(&dir.path().join(EVAL_JSON), &report)?;
-    write_file_atomic(&dir.path().join(EVAL_MD), table.as_bytes())?;
-    let recording = ctx.open_recording(Some(dir.path()))?;
-    if let Some(rec) = recording.stream()
-        && args.record_episodes > 0
-    {
-        progress.step("recording greedy episodes");
-        crate::recording::log_map(rec, setup.map())?;
+    let map = setup.map();
+    write_outputs(ctx, args, &out, &report, &table, progress, |rec| {
+        crate::recording::log_map(rec, map)?;
         let condition = Condition {
             traffic: TrafficLevel::Medium,
             aggressiveness: 0.5,
@@ -239,14 +234,8 @@ fn eval_insertion(
             condition,
             args.record_episodes,
             ctx.cli.seed,
-        )?;
-    }
-    recording.finish()?;
-    let dest = dir.commit()?;
-    drop(progress);
-    ctx.ui
-        .result(&format!("{table}\nwritten to {}", dest.display()));
-    Ok(())
+        )
+    })
 }
 
 /// `eval.json` of a task other than insertion.
@@ -348,14 +337,7 @@ fn eval_task<K: GenericTask>(
         ctx.cli.seed,
     );
 
-    let dir = AtomicDir::create(&out, EVAL_MARKERS)?;
-    write_json(&dir.path().join(EVAL_JSON), &report)?;
-    write_file_atomic(&dir.path().join(EVAL_MD), text.as_bytes())?;
-    let recording = ctx.open_recording(Some(dir.path()))?;
-    if let Some(rec) = recording.stream()
-        && args.record_episodes > 0
-    {
-        progress.step("recording greedy episodes");
+    write_outputs(ctx, args, &out, &report, &text, progress, |rec| {
         if let Some(map) = K::map(&setup) {
             crate::recording::log_map(rec, map)?;
         }
@@ -365,7 +347,30 @@ fn eval_task<K: GenericTask>(
             &policy,
             args.record_episodes,
             ctx.cli.seed,
-        )?;
+        )
+    })
+}
+
+/// Writes `eval.json`, `eval.md` and the recording (the greedy episodes `record` logs,
+/// when `--record-episodes` asks for any) into `out`, atomically, and prints the table.
+fn write_outputs(
+    ctx: &Context<'_>,
+    args: &EvalArgs,
+    out: &Path,
+    report: &impl Serialize,
+    text: &str,
+    mut progress: Progress<'_>,
+    record: impl FnOnce(&Stream) -> Result<()>,
+) -> Result<()> {
+    let dir = AtomicDir::create(out, EVAL_MARKERS)?;
+    write_json(&dir.path().join(EVAL_JSON), report)?;
+    write_file_atomic(&dir.path().join(EVAL_MD), text.as_bytes())?;
+    let recording = ctx.open_recording(Some(dir.path()))?;
+    if let Some(rec) = recording.stream()
+        && args.record_episodes > 0
+    {
+        progress.step("recording greedy episodes");
+        record(rec)?;
     }
     recording.finish()?;
     let dest = dir.commit()?;
