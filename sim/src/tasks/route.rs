@@ -572,7 +572,9 @@ impl RouteFollowing {
 
     /// One simulation step of everyone; the outcome if the episode ended.
     fn advance(&mut self) -> Option<Outcome> {
-        let config = self.setup.config.clone();
+        // The setup, not its config, is cloned: an Arc, cheap at every step.
+        let setup = Arc::clone(&self.setup);
+        let config = &setup.config;
         let dt = config.step_s;
         // Everyone drives by the IDM behind whoever is ahead in their lane, the ego included.
         let driver = Driver::new(&DriverConfig::default(), 0.5);
@@ -729,7 +731,9 @@ impl Env for RouteFollowing {
                 outcome: Some(outcome),
             };
         }
-        let config = self.setup.config.clone();
+        // The setup, not its config, is cloned: an Arc, cheap at every step.
+        let setup = Arc::clone(&self.setup);
+        let config = &setup.config;
         let change = match action {
             LEFT => config.steer_increment_rad,
             RIGHT => -config.steer_increment_rad,
