@@ -8,7 +8,7 @@
 //! so the same seed gives the same network on every backend, in any thread, and the PyTorch
 //! comparison in `scripts/bench_qnet.py` starts from the same distribution.
 
-use burn::module::{Module, Param};
+use burn::module::{Module, Param, ParamId};
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig};
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d};
@@ -164,7 +164,7 @@ impl QNetworkConfig {
         {
             return Err("pooling.height and pooling.width must be positive".into());
         }
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut rng = ParamSource::new(seed);
         let mut in_channels = spec.channels;
         let mut convolutions = Vec::with_capacity(self.convolutions.len());
         // Without layers (a task of scalar inputs only) there is nothing to convolve.
@@ -326,25 +326,62 @@ fn uniform(len: usize, bound: f32, rng: &mut ChaCha8Rng) -> Vec<f32> {
     (0..len).map(|_| rng.random_range(-bound..bound)).collect()
 }
 
-/// A linear layer with PyTorch's default initialisation (±1/√fan_in) from `rng`.
-fn seeded_linear(inputs: usize, outputs: usize, rng: &mut ChaCha8Rng, device: &Device) -> Linear {
+/// Parameter values and ids, both drawn deterministically: values from the seed's
+/// generator, ids counting up (burn's own ids are random, which would make two runs'
+/// files differ byte for byte).
+struct ParamSource {
+    rng: ChaCha8Rng,
+    next_id: u64,
+}
+
+impl ParamSource {
+    fn new(seed: u64) -> Self {
+        ParamSource {
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            next_id: 1,
+        }
+    }
+
+    /// Uniform values in ±`bound`, shaped `shape`, as the next parameter.
+    fn uniform<const D: usize>(
+        &mut self,
+        shape: [usize; D],
+        bound: f32,
+        device: &Device,
+    ) -> Param<Tensor<D>> {
+        let values = uniform(shape.iter().product(), bound, &mut self.rng);
+        let tensor = Tensor::from_data(TensorData::new(values, shape), device);
+        // `from_tensor` marks the parameter trainable; re-creating it keeps that and gives
+        // it the next id.
+        let (_, value, mapper) = Param::from_tensor(tensor).consume();
+        let id = ParamId::from(self.next_id);
+        self.next_id += 1;
+        Param::from_mapped_value(id, value, mapper)
+    }
+}
+
+/// A linear layer with PyTorch's default initialisation (±1/√fan_in).
+fn seeded_linear(
+    inputs: usize,
+    outputs: usize,
+    source: &mut ParamSource,
+    device: &Device,
+) -> Linear {
     let mut layer = LinearConfig::new(inputs, outputs)
         .with_initializer(Initializer::Zeros)
         .init(device);
     let bound = 1.0 / (inputs as f32).sqrt();
-    layer.weight = Param::from_data(
-        TensorData::new(uniform(inputs * outputs, bound, rng), [inputs, outputs]),
-        device,
-    );
-    layer.bias = Some(Param::from_data(
-        TensorData::new(uniform(outputs, bound, rng), [outputs]),
-        device,
-    ));
+    layer.weight = source.uniform([inputs, outputs], bound, device);
+    layer.bias = Some(source.uniform([outputs], bound, device));
     layer
 }
 
-/// A convolution with PyTorch's default initialisation (±1/√(in·k·k)) from `rng`.
-fn seeded_conv(inputs: usize, conv: &ConvSpec, rng: &mut ChaCha8Rng, device: &Device) -> Conv2d {
+fn seeded_conv(
+    inputs: usize,
+    conv: &ConvSpec,
+    source: &mut ParamSource,
+    device: &Device,
+) -> Conv2d {
     let k = conv.kernel;
     let mut layer = Conv2dConfig::new([inputs, conv.channels], [k, k])
         .with_stride([conv.stride, conv.stride])
@@ -358,17 +395,8 @@ fn seeded_conv(inputs: usize, conv: &ConvSpec, rng: &mut ChaCha8Rng, device: &De
         .init(device);
     let fan_in = inputs * k * k;
     let bound = 1.0 / (fan_in as f32).sqrt();
-    layer.weight = Param::from_data(
-        TensorData::new(
-            uniform(conv.channels * fan_in, bound, rng),
-            [conv.channels, inputs, k, k],
-        ),
-        device,
-    );
-    layer.bias = Some(Param::from_data(
-        TensorData::new(uniform(conv.channels, bound, rng), [conv.channels]),
-        device,
-    ));
+    layer.weight = source.uniform([conv.channels, inputs, k, k], bound, device);
+    layer.bias = Some(source.uniform([conv.channels], bound, device));
     layer
 }
 
@@ -425,6 +453,29 @@ mod tests {
             assert_eq!(q.len(), 6);
             assert!(q.iter().all(|v| v.is_finite()));
         }
+        Ok(())
+    }
+
+    #[test]
+    fn two_networks_of_one_seed_save_to_the_same_bytes() -> Result<(), String> {
+        // Parameter ids are part of the file: they must come from the seed too.
+        let device = Device::flex();
+        let dir = std::env::temp_dir().join(format!("qnet_bytes_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+        let mut files = Vec::new();
+        for name in ["a", "b"] {
+            let path = dir.join(format!("{name}.bpk"));
+            QNetworkConfig::default()
+                .init(&spec(), 3, 7, &device)?
+                .save_file(&path)
+                .map_err(|e| e.to_string())?;
+            files.push(std::fs::read(&path).map_err(|e| e.to_string())?);
+        }
+        std::fs::remove_dir_all(&dir).map_err(|e| e.to_string())?;
+        assert!(
+            files[0] == files[1],
+            "two saves of one seed's network differ"
+        );
         Ok(())
     }
 
