@@ -95,6 +95,16 @@ impl BevConfig {
         self.layers.len() * self.stack
     }
 
+    /// The shape of a task's observations drawn with this view, beside `scalars` inputs.
+    pub fn observation_spec(&self, scalars: usize) -> crate::ObservationSpec {
+        crate::ObservationSpec {
+            channels: self.channels(),
+            height: self.height,
+            width: self.width,
+            scalars,
+        }
+    }
+
     /// Radius around the ego that a frame can show, m.
     pub fn view_radius_m(&self) -> f64 {
         self.forward_m.hypot(self.lateral_m) / 2.0

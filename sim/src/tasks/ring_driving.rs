@@ -227,12 +227,7 @@ pub const SCALARS: usize = 2;
 
 /// The observation shape of the task drawn with `bev`.
 pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
-    ObservationSpec {
-        channels: bev.channels(),
-        height: bev.height,
-        width: bev.width,
-        scalars: SCALARS,
-    }
+    bev.observation_spec(SCALARS)
 }
 
 /// What is prepared once per map and shared by every environment on it (read-only).

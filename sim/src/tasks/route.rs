@@ -5,7 +5,8 @@
 //!   `route_length_m` long, drawn once per map from `pool_seed`. A fixed share of them
 //!   (`held_out_fraction`, chosen by a hash of their end lanes) is held out: training
 //!   episodes never see them, evaluation on [`RouteSplit::HeldOut`] uses only them.
-//! - Actions (on steering increments): **forward** (steering kept), **forward+left**
+//! - Actions ([`SteerAction`], as roundabout driving's, but on steering increments):
+//!   **forward** (steering kept), **forward+left**
 //!   (steering + `steer_increment_rad`), **forward+right** (− the same), within
 //!   ±`max_steer_rad`. Speed is not the agent's: the ego accelerates to `max_speed_kmh`
 //!   (8 km/h by default, the study's campus speed) and brakes (IDM) behind a vehicle in its
@@ -42,14 +43,9 @@ use crate::kinematics::{Bicycle, advance_speed, direction};
 use crate::path::{Path, PieceKey, SpeedProfile, wrap_angle};
 use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
 use crate::seed::derive_seed;
+use crate::tasks::ring_driving::SteerAction;
 use crate::tasks::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
 use crate::world::{Driver, DriverConfig, EgoConfig};
-
-/// The three actions, by index.
-pub const ACTION_NAMES: [&str; 3] = ["forward", "forward_left", "forward_right"];
-const FORWARD: usize = 0;
-const LEFT: usize = 1;
-const RIGHT: usize = 2;
 
 /// Distance within which the nearest other vehicle is an input, m.
 const NEAR_M: f64 = 20.0;
@@ -190,6 +186,8 @@ pub struct RouteSetup {
     map: Arc<Map>,
     config: RouteConfig,
     routes: Vec<PlannedRoute>,
+    /// The car-following model everyone drives by (a middling driver).
+    driver: Driver,
 }
 
 impl RouteSetup {
@@ -258,6 +256,7 @@ impl RouteSetup {
             map,
             config,
             routes,
+            driver: Driver::new(&DriverConfig::default(), 0.5),
         }))
     }
 
@@ -577,7 +576,7 @@ impl RouteFollowing {
         let config = &setup.config;
         let dt = config.step_s;
         // Everyone drives by the IDM behind whoever is ahead in their lane, the ego included.
-        let driver = Driver::new(&DriverConfig::default(), 0.5);
+        let driver = &setup.driver;
         let vehicles = self.vehicles();
         let accels: Vec<f64> = (0..vehicles.len())
             .map(|i| {
@@ -687,11 +686,11 @@ impl Env for RouteFollowing {
     }
 
     fn action_count(&self) -> usize {
-        ACTION_NAMES.len()
+        SteerAction::ALL.len()
     }
 
     fn action_names(&self) -> &'static [&'static str] {
-        &ACTION_NAMES
+        &SteerAction::NAMES
     }
 
     fn reset(&mut self, seed: u64) -> Observation {
@@ -734,9 +733,9 @@ impl Env for RouteFollowing {
         // The setup, not its config, is cloned: an Arc, cheap at every step.
         let setup = Arc::clone(&self.setup);
         let config = &setup.config;
-        let change = match action {
-            LEFT => config.steer_increment_rad,
-            RIGHT => -config.steer_increment_rad,
+        let change = match SteerAction::from_index(action) {
+            Some(SteerAction::ForwardLeft) => config.steer_increment_rad,
+            Some(SteerAction::ForwardRight) => -config.steer_increment_rad,
             _ => 0.0,
         };
         let max_steer = config.ego.max_steer_rad;
@@ -788,7 +787,7 @@ impl Task for RouteFollowing {
     }
 
     fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
-        let mut baselines = constant_baselines::<Self>(&ACTION_NAMES);
+        let mut baselines = constant_baselines::<Self>(&SteerAction::NAMES);
         let rule: PolicyFactory<Self> = Box::new(|| Box::new(PursuitRule));
         baselines.push(("rule: pure pursuit".to_owned(), rule));
         baselines
@@ -841,7 +840,7 @@ impl Task for RouteFollowing {
 pub struct PursuitRule;
 
 impl PursuitRule {
-    fn decide(env: &RouteFollowing) -> usize {
+    fn decide(env: &RouteFollowing) -> SteerAction {
         let config = env.config();
         let lookahead = 3.0 + 0.5 * env.speed;
         let path = &env.route().path;
@@ -849,11 +848,11 @@ impl PursuitRule {
         let wanted = env.bike.pure_pursuit(target, config.ego.max_steer_rad);
         let half_step = config.steer_increment_rad / 2.0;
         if wanted > env.steer + half_step {
-            LEFT
+            SteerAction::ForwardLeft
         } else if wanted < env.steer - half_step {
-            RIGHT
+            SteerAction::ForwardRight
         } else {
-            FORWARD
+            SteerAction::Forward
         }
     }
 }
@@ -861,7 +860,7 @@ impl PursuitRule {
 impl TaskPolicy<RouteFollowing> for PursuitRule {
     fn act(&mut self, envs: &[&RouteFollowing], _: &[&Observation], actions: &mut Vec<usize>) {
         actions.clear();
-        actions.extend(envs.iter().map(|env| Self::decide(env)));
+        actions.extend(envs.iter().map(|env| Self::decide(env) as usize));
     }
 }
 
