@@ -220,3 +220,179 @@ fn replay_labels_real_approaches_and_scores_the_baselines() {
         stderr(&out)
     );
 }
+
+/// `agent train --offline` (issue 7, offline RL): CQL on the drivers of one FT recording
+/// writes an agent folder like an online one's, deterministically; `replay eval` and
+/// `agent eval` (the simulator on the same map) take it as they take online agents, and
+/// the inputs it was told to ignore (aggressiveness, last action) change nothing.
+#[test]
+fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some((map, log)) = ft_recording(tmp.path(), 0) else {
+        return;
+    };
+    let config = tmp.path().join("offline.toml");
+    std::fs::write(
+        &config,
+        "[agent.dqn]\nbatch_size = 16\n[agent.dqn.network]\nconvolutions = []\nscalar_hidden = 0\nhidden = [16]\n\
+         [agent.offline]\ntarget_update_every = 50\n\
+         [agent.task.observation]\nwidth = 21\nheight = 21\nstack = 1\n",
+    )
+    .unwrap();
+    let train = |out: &Path, algorithm: &str| {
+        let result = pipeline()
+            .args(["--rerun", "off", "--seed", "4", "--config"])
+            .arg(&config)
+            .args([
+                "agent",
+                "train",
+                "--offline",
+                "--algorithm",
+                algorithm,
+                "--steps",
+                "120",
+            ])
+            .arg("--map")
+            .arg(&map)
+            .arg("--log")
+            .arg(&log)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        assert_success(&result, "agent train --offline");
+    };
+    let agent = tmp.path().join("cql");
+    train(&agent, "cql");
+    let run = read_json(&agent.join("offline.json"));
+    let summary = &run["summary"];
+    assert_eq!(run["config"]["algorithm"], "cql");
+    assert_eq!(summary["gradient_steps"], 120);
+    assert_eq!(summary["curve"].as_array().unwrap().len(), 2);
+    assert!(summary["curve"][0]["td_loss"].is_f64());
+    let counts: Vec<u64> = summary["action_counts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_u64().unwrap())
+        .collect();
+    assert!(
+        counts[0] > 100 && counts[1] > 100 && counts[2] == 0,
+        "{counts:?}"
+    );
+    assert_eq!(
+        summary["transitions"].as_u64().unwrap(),
+        counts.iter().sum::<u64>()
+    );
+    let agreement = summary["train_agreement"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&agreement));
+    let description = read_json(&agent.join("agent.json"));
+    assert_eq!(
+        description["config"]["network"]["ignored_scalars"],
+        serde_json::json!([2, 3, 4, 5])
+    );
+    assert_eq!(
+        read_json(&agent.join("task.json"))["task"],
+        "roundabout-insertion"
+    );
+
+    // Same seed, same network.
+    let again = tmp.path().join("cql_again");
+    train(&again, "cql");
+    assert_eq!(
+        std::fs::read(agent.join("online.bpk")).unwrap(),
+        std::fs::read(again.join("online.bpk")).unwrap()
+    );
+    // Behaviour cloning has no TD part.
+    let bc = tmp.path().join("bc");
+    train(&bc, "bc");
+    let bc_run = read_json(&bc.join("offline.json"));
+    assert_eq!(bc_run["config"]["algorithm"], "behaviour_cloning");
+    assert!(bc_run["summary"]["curve"][0]["td_loss"].is_null());
+
+    // Replayed against the drivers: the aggressiveness levels decide alike.
+    let replay = tmp.path().join("replay");
+    let out = pipeline()
+        .args([
+            "--rerun",
+            "off",
+            "replay",
+            "eval",
+            "--aggressiveness",
+            "0,1",
+            "--log",
+        ])
+        .arg(&log)
+        .arg("--map")
+        .arg(&map)
+        .arg("--agent")
+        .arg(&agent)
+        .arg("--out")
+        .arg(&replay)
+        .output()
+        .unwrap();
+    assert_success(&out, "replay eval --agent <offline agent>");
+    let r = read_json(&replay.join("replay.json"));
+    let policy = |name: &str| {
+        r["policies"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["policy"] == name)
+            .unwrap_or_else(|| panic!("no policy {name}: {r}"))
+            .clone()
+    };
+    assert_eq!(
+        policy("agent, aggressiveness 0")["confusion"],
+        policy("agent, aggressiveness 1")["confusion"]
+    );
+
+    // In the simulator, on the same map.
+    let eval = tmp.path().join("eval");
+    let out = pipeline()
+        .args([
+            "--rerun",
+            "off",
+            "agent",
+            "eval",
+            "--episodes",
+            "4",
+            "--traffic",
+            "medium",
+        ])
+        .args(["--aggressiveness", "0.5", "--no-baselines", "--agent"])
+        .arg(&agent)
+        .arg("--out")
+        .arg(&eval)
+        .output()
+        .unwrap();
+    assert_success(&out, "agent eval <offline agent>");
+    assert!(eval.join("eval.json").is_file());
+
+    // Offline learning is for roundabout insertion only.
+    let out = pipeline()
+        .args([
+            "--rerun",
+            "off",
+            "agent",
+            "train",
+            "--offline",
+            "--task",
+            "route-following",
+        ])
+        .arg("--map")
+        .arg(&map)
+        .arg("--log")
+        .arg(&log)
+        .arg("--out")
+        .arg(tmp.path().join("bad"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("--offline learns roundabout insertion"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!tmp.path().join("bad").exists());
+}

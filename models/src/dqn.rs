@@ -493,7 +493,7 @@ pub fn train<E: Env>(
         if let TargetUpdate::Hard { every_steps } = config.target_update
             && steps / every_steps != steps_before / every_steps
         {
-            learner.target = learner.online.valid();
+            learner.sync_target();
         }
 
         // 5. Record.
@@ -603,6 +603,42 @@ pub fn td_targets(
         .collect()
 }
 
+/// What a gradient step minimises.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Objective {
+    /// The TD error (DQN, Double DQN).
+    Td,
+    /// The TD error plus `alpha` × (logsumexp_a Q(s, a) − Q(s, a_data)): discrete
+    /// conservative Q-learning (CQL(H), Kumar et al. 2020), which pushes down the values of
+    /// actions the data did not take, for learning from a fixed dataset.
+    Conservative { alpha: f64 },
+    /// logsumexp_a Q(s, a) − Q(s, a_data) alone: the cross-entropy of softmax(Q) with the
+    /// data's action, i.e. behaviour cloning with the Q-network as classifier.
+    Imitation,
+}
+
+/// What one gradient step measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnStep {
+    /// The loss minimised.
+    pub loss: f64,
+    /// The TD part (None for imitation).
+    pub td_loss: Option<f64>,
+    /// The logsumexp − Q(s, a_data) part (None for plain TD).
+    pub regulariser: Option<f64>,
+    /// Mean Q of the taken actions.
+    pub mean_q: f64,
+    /// Per sample, Q(s, a) − target (empty for imitation).
+    pub td_errors: Vec<f32>,
+}
+
+/// `log Σ_a exp(q[·, a])` per row of `[batch, actions]`, as `[batch, 1]` (shifted by the
+/// row maximum so large values do not overflow).
+fn log_sum_exp(q: Tensor<2>) -> Tensor<2> {
+    let max = q.clone().max_dim(1).detach();
+    (q - max.clone()).exp().sum_dim(1).log() + max
+}
+
 /// The networks, the optimiser and the counters of a run. Public so that the speed
 /// comparison with PyTorch (`examples/bench_qnet_step.rs`) times exactly the gradient step
 /// training runs.
@@ -706,7 +742,7 @@ impl<'a> Learner<'a> {
         let (td_loss, mean_q, td_errors) = self.learn(batch);
         replay.update_priorities(&leaves, &td_errors);
         if let TargetUpdate::Soft { tau } = config.target_update {
-            self.target = soft_update(self.target.clone(), &self.online.valid(), tau);
+            self.blend_target(tau);
         }
         self.state.updates += 1;
         self.window
@@ -717,33 +753,41 @@ impl<'a> Learner<'a> {
     /// for Double DQN), Huber or squared TD error weighted by the importance weights,
     /// backward, Adam. Returns (loss, mean Q of the taken actions, TD errors).
     pub fn learn(&mut self, batch: Batch) -> (f64, f64, Vec<f32>) {
+        let step = self.learn_with(batch, Objective::Td);
+        (step.loss, step.mean_q, step.td_errors)
+    }
+
+    /// One gradient step on `batch` towards `objective` (see [`Objective`]).
+    pub fn learn_with(&mut self, batch: Batch, objective: Objective) -> LearnStep {
         let config = self.config;
         let (b, a) = (batch.size, self.actions);
 
-        // Targets, without gradients.
-        let (next_layers, next_scalars) = batch_tensors(
-            batch.next_layers,
-            batch.next_scalars,
-            b,
-            &self.spec,
-            &self.device,
-        );
-        let next_q_target = tensor_values(
-            self.target
-                .forward(next_layers.clone(), next_scalars.clone()),
-        );
-        let next_q_online = config
-            .double
-            .then(|| tensor_values(self.online.valid().forward(next_layers, next_scalars)));
-        let targets = td_targets(
-            &batch.returns,
-            &batch.discounts,
-            &next_q_target,
-            next_q_online.as_deref(),
-            a,
-        );
+        // Targets, without gradients (imitation needs none).
+        let targets = (!matches!(objective, Objective::Imitation)).then(|| {
+            let (next_layers, next_scalars) = batch_tensors(
+                batch.next_layers,
+                batch.next_scalars,
+                b,
+                &self.spec,
+                &self.device,
+            );
+            let next_q_target = tensor_values(
+                self.target
+                    .forward(next_layers.clone(), next_scalars.clone()),
+            );
+            let next_q_online = config
+                .double
+                .then(|| tensor_values(self.online.valid().forward(next_layers, next_scalars)));
+            td_targets(
+                &batch.returns,
+                &batch.discounts,
+                &next_q_target,
+                next_q_online.as_deref(),
+                a,
+            )
+        });
 
-        // Q(s, a) of the taken actions, with gradients.
+        // Q(s, ·) and Q(s, a) of the taken actions, with gradients.
         let (layers, scalars) = batch_tensors(
             batch.layers,
             batch.scalars,
@@ -754,32 +798,84 @@ impl<'a> Learner<'a> {
         let q = self.online.forward(layers, scalars);
         let taken: Vec<i64> = batch.actions.iter().map(|&x| x as i64).collect();
         let taken = Tensor::<2, Int>::from_data(TensorData::new(taken, [b, 1]), &self.train_device);
-        let q_taken = q.gather(1, taken);
+        let q_taken = q.clone().gather(1, taken);
         let column = |values: Vec<f32>| {
             Tensor::<2>::from_data(TensorData::new(values, [b, 1]), &self.train_device)
         };
-        let td = q_taken.clone() - column(targets);
-        let per_sample = match config.loss {
-            TdLoss::Huber { delta } => HuberLossConfig::new(delta)
-                .init()
-                .forward_residuals(td.clone()),
-            TdLoss::Mse => td.clone().powi_scalar(2),
+        let weights = column(batch.weights);
+
+        // The TD error's loss, weighted by the importance weights.
+        let td = targets.map(|targets| {
+            let td = q_taken.clone() - column(targets);
+            let per_sample = match config.loss {
+                TdLoss::Huber { delta } => HuberLossConfig::new(delta)
+                    .init()
+                    .forward_residuals(td.clone()),
+                TdLoss::Mse => td.clone().powi_scalar(2),
+            };
+            (td, (per_sample * weights.clone()).mean())
+        });
+        // logsumexp_a Q(s, a) − Q(s, a_data): cross-entropy of softmax(Q) with the data's
+        // action; CQL's penalty on the values of actions the data did not take.
+        let imitation = || {
+            let gap = log_sum_exp(q.clone()) - q_taken.clone();
+            (gap * weights.clone()).mean()
         };
-        let loss = (per_sample * column(batch.weights)).mean();
+        let (loss, regulariser) = match (objective, td.as_ref()) {
+            (Objective::Td, Some((_, td_loss))) => (td_loss.clone(), None),
+            (Objective::Conservative { alpha }, Some((_, td_loss))) => {
+                let penalty = imitation();
+                (
+                    td_loss.clone() + penalty.clone().mul_scalar(alpha),
+                    Some(penalty),
+                )
+            }
+            (Objective::Imitation, _) | (_, None) => {
+                let penalty = imitation();
+                (penalty.clone(), Some(penalty))
+            }
+        };
 
         let gradients = GradientsParams::from_grads(loss.backward(), &self.online);
         self.online = self
             .optimizer
             .step(config.learning_rate, self.online.clone(), gradients);
 
-        let td_errors = tensor_values(td);
-        let loss = tensor_values(loss).first().copied().unwrap_or(f32::NAN);
+        let scalar =
+            |t: Tensor<1>| f64::from(tensor_values(t).first().copied().unwrap_or(f32::NAN));
         let q_taken = tensor_values(q_taken);
-        let mean_q = q_taken.iter().map(|&v| f64::from(v)).sum::<f64>() / b as f64;
-        (f64::from(loss), mean_q, td_errors)
+        LearnStep {
+            loss: scalar(loss),
+            td_errors: td
+                .as_ref()
+                .map_or_else(Vec::new, |(td, _)| tensor_values(td.clone())),
+            td_loss: td.map(|(_, l)| scalar(l)),
+            regulariser: regulariser.map(scalar),
+            mean_q: q_taken.iter().map(|&v| f64::from(v)).sum::<f64>() / b as f64,
+        }
     }
 
-    fn checkpoint(&self, config: &DqnConfig, shape: &AgentShape) -> Checkpoint {
+    /// Copies the online network into the target network (a hard target update).
+    pub fn sync_target(&mut self) {
+        self.target = self.online.valid();
+    }
+
+    /// Blends the online network into the target network: `τ·online + (1 − τ)·target`.
+    pub fn blend_target(&mut self, tau: f64) {
+        self.target = soft_update(self.target.clone(), &self.online.valid(), tau);
+    }
+
+    /// The counters and curves (offline training keeps its own in them).
+    pub fn state_mut(&mut self) -> &mut TrainState {
+        &mut self.state
+    }
+
+    /// The online network, for inference.
+    pub fn online(&self) -> QNetwork {
+        self.online.valid()
+    }
+
+    pub fn checkpoint(&self, config: &DqnConfig, shape: &AgentShape) -> Checkpoint {
         Checkpoint {
             config: config.clone(),
             shape: shape.clone(),
@@ -1109,6 +1205,7 @@ mod tests {
                 scalar_hidden: 4,
                 hidden: vec![32],
                 dueling: false,
+                ignored_scalars: Vec::new(),
             },
             n_step: 1,
             gamma: 0.95,

@@ -10,6 +10,8 @@
 //!   returns; prioritised sampling over a [`sum_tree`]).
 //! - [`vec_env`]: environments stepped in parallel with rayon.
 //! - [`bc`]: behaviour cloning, a go / wait classifier on the agent's inputs.
+//! - [`offline`]: learning from recorded transitions: discrete CQL and behaviour cloning on
+//!   the agent's Q-network.
 //! - [`policy`]: a trained Q-network as a [`sim::baselines::Policy`] for the evaluation harness.
 //!
 //! Backend: burn's `flex` CPU backend by default ([`cpu_device`]); the `cuda` and `wgpu`
@@ -19,6 +21,7 @@
 pub mod bc;
 pub mod dqn;
 pub mod error;
+pub mod offline;
 pub mod packed;
 pub mod policy;
 pub mod qnet;

@@ -59,6 +59,11 @@ pub struct QNetworkConfig {
     pub hidden: Vec<usize>,
     /// Separate state-value and advantage heads: Q = V + A − mean(A).
     pub dueling: bool,
+    /// Indices of scalar inputs the network does not read (multiplied by zero). Agents
+    /// learnt from human logs ignore what the logs cannot give them: the drivers'
+    /// aggressiveness, and their previous decision (which nearly always equals the current
+    /// one, so a network that reads it learns to repeat itself).
+    pub ignored_scalars: Vec<usize>,
 }
 
 /// The Nature-DQN convolutions (32 8×8/4, 64 4×4/2, 64 3×3/1), shared by the presets.
@@ -84,6 +89,7 @@ impl Default for QNetworkConfig {
             scalar_hidden: 64,
             hidden: vec![256],
             dueling: false,
+            ignored_scalars: Vec::new(),
         }
     }
 }
@@ -101,6 +107,7 @@ impl QNetworkConfig {
             scalar_hidden: 0,
             hidden: vec![256],
             dueling: false,
+            ignored_scalars: Vec::new(),
         }
     }
 
@@ -159,6 +166,19 @@ impl QNetworkConfig {
         if actions == 0 {
             return Err("the task has no actions".into());
         }
+        if let Some(i) = self.ignored_scalars.iter().find(|&&i| i >= spec.scalars) {
+            return Err(format!(
+                "ignored_scalars: the task has {} scalar inputs, there is no input {i}",
+                spec.scalars
+            ));
+        }
+        let scalar_mask = if self.ignored_scalars.is_empty() {
+            Vec::new()
+        } else {
+            (0..spec.scalars)
+                .map(|i| f32::from(u8::from(!self.ignored_scalars.contains(&i))))
+                .collect()
+        };
         if let Pooling::Average { height, width } = self.pooling
             && (height == 0 || width == 0)
         {
@@ -216,6 +236,7 @@ impl QNetworkConfig {
         Ok(QNetwork {
             convolutions,
             pool,
+            scalar_mask,
             scalar_layer,
             hidden,
             head,
@@ -229,6 +250,10 @@ impl QNetworkConfig {
 pub struct QNetwork {
     convolutions: Vec<Conv2d>,
     pool: Option<AdaptiveAvgPool2d>,
+    /// 0 for the scalar inputs the network ignores, 1 for the others; empty: reads them all.
+    /// Rebuilt from the config, not saved with the parameters.
+    #[module(skip)]
+    scalar_mask: Vec<f32>,
     scalar_layer: Option<Linear>,
     hidden: Vec<Linear>,
     /// Q-values, or the advantages of a dueling network.
@@ -260,6 +285,15 @@ impl QNetwork {
                 x = pool.forward(x);
             }
             Some(x.flatten::<2>(1, 3))
+        };
+        let scalars = if self.scalar_mask.is_empty() {
+            scalars
+        } else {
+            let mask = Tensor::<1>::from_data(
+                TensorData::new(self.scalar_mask.clone(), [self.scalar_mask.len()]),
+                &scalars.device(),
+            );
+            scalars * mask.unsqueeze::<2>()
         };
         let scalar = match &self.scalar_layer {
             Some(layer) => relu(layer.forward(scalars)),
@@ -567,6 +601,39 @@ mod tests {
         for (q, a) in q.iter().zip(&advantages) {
             assert!((q - (value + a - mean)).abs() < 1e-5);
         }
+        Ok(())
+    }
+
+    /// Ignored scalar inputs change nothing; the others do; an index past the task's
+    /// scalars is refused.
+    #[test]
+    fn ignored_scalars_do_not_reach_the_q_values() -> Result<(), String> {
+        let device = Device::flex();
+        let s = ObservationSpec {
+            channels: 0,
+            height: 0,
+            width: 0,
+            scalars: 3,
+        };
+        let config = QNetworkConfig {
+            convolutions: vec![],
+            hidden: vec![8],
+            ignored_scalars: vec![1, 2],
+            ..QNetworkConfig::default()
+        };
+        let net = config.init(&s, 2, 4, &device)?;
+        let q = |values: Vec<f32>| {
+            let (layers, scalars) = batch_tensors(vec![], values, 1, &s, &device);
+            tensor_values(net.forward(layers, scalars))
+        };
+        assert_eq!(q(vec![0.3, 0.0, 0.0]), q(vec![0.3, 5.0, -2.0]));
+        assert_ne!(q(vec![0.3, 0.0, 0.0]), q(vec![0.9, 0.0, 0.0]));
+        let bad = QNetworkConfig {
+            ignored_scalars: vec![3],
+            ..config
+        };
+        let err = bad.init(&s, 2, 4, &device).err().unwrap_or_default();
+        assert!(err.contains("no input 3"), "{err}");
         Ok(())
     }
 

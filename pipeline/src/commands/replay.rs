@@ -308,8 +308,9 @@ impl Report {
     }
 }
 
-/// What the policies that read the bird's-eye view (the agent, behaviour cloning) see.
-struct Views {
+/// What the policies that read the bird's-eye view (the agent, behaviour cloning) see;
+/// offline training (`agent train --offline`) learns from the same.
+pub(crate) struct Views {
     bev: BevConfig,
     renderer: BevRenderer,
     speed_scale_mps: f64,
@@ -317,9 +318,33 @@ struct Views {
 }
 
 impl Views {
+    /// The views of `bev` over `map` (read from `map_path`), with the scalars' speed scale
+    /// and the target speed the policies are told.
+    pub(crate) fn new(
+        map: &maps::Map,
+        map_path: &Path,
+        bev: BevConfig,
+        speed_scale_mps: f64,
+        target_speed_mps: f64,
+    ) -> Result<Views> {
+        let renderer = BevRenderer::new(map, map.bounds(), bev.clone()).map_err(|e| {
+            CliError::file(
+                map_path,
+                e.to_string(),
+                "give the map the logs were recorded on",
+            )
+        })?;
+        Ok(Views {
+            bev,
+            renderer,
+            speed_scale_mps,
+            target_speed_mps,
+        })
+    }
+
     /// Per frame of the approach: its layer stack (oldest first, the first frame repeated
     /// at the start) and the vehicle's speed.
-    fn stacks(
+    pub(crate) fn stacks(
         &self,
         map: &maps::Map,
         frames: &[LogFrame],
@@ -359,7 +384,7 @@ impl Views {
     }
 
     /// The task's observation: the layer stack and its scalars (no last action: all zero).
-    fn observation(
+    pub(crate) fn observation(
         &self,
         stack: Vec<u8>,
         speed: f64,
@@ -378,19 +403,23 @@ impl Views {
         }
     }
 
-    fn spec(&self) -> ObservationSpec {
+    pub(crate) fn spec(&self) -> ObservationSpec {
         observation_spec(&self.bev)
     }
 }
 
 /// A log read into frames, with its approaches.
-struct ReplayLog {
-    name: String,
-    frames: Vec<LogFrame>,
-    approaches: Vec<Approach>,
+pub(crate) struct ReplayLog {
+    pub(crate) name: String,
+    pub(crate) frames: Vec<LogFrame>,
+    pub(crate) approaches: Vec<Approach>,
 }
 
-fn read_log(map: &maps::Map, path: &std::path::Path, labels: &LabelConfig) -> Result<ReplayLog> {
+pub(crate) fn read_log(
+    map: &maps::Map,
+    path: &std::path::Path,
+    labels: &LabelConfig,
+) -> Result<ReplayLog> {
     let name = path.file_name().map_or_else(
         || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
@@ -458,19 +487,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             )
         }
     };
-    let renderer = BevRenderer::new(&map, map.bounds(), bev.clone()).map_err(|e| {
-        CliError::file(
-            &args.map,
-            e.to_string(),
-            "give the map the logs were recorded on",
-        )
-    })?;
-    let views = Views {
-        bev,
-        renderer,
-        speed_scale_mps,
-        target_speed_mps: args.target_speed,
-    };
+    let views = Views::new(&map, &args.map, bev, speed_scale_mps, args.target_speed)?;
     let labels = LabelConfig::default();
 
     // Behaviour cloning on the training logs' go and wait frames.

@@ -143,6 +143,10 @@ impl Default for InsertionConfig {
 
 /// Number of scalar inputs: speed, target speed, aggressiveness, last action (one-hot).
 pub const SCALARS: usize = 3 + Action::ALL.len();
+/// Where the aggressiveness is among the scalar inputs.
+pub const AGGRESSIVENESS_SCALAR: usize = 2;
+/// Where the last action's one-hot is among the scalar inputs.
+pub const LAST_ACTION_SCALARS: std::ops::Range<usize> = 3..SCALARS;
 
 /// The scalar inputs in their order: speed and target speed over `speed_scale_mps`, the
 /// aggressiveness, and the last action one-hot (all zero for none). Logs projected for an
@@ -157,9 +161,9 @@ pub fn observation_scalars(
     let mut scalars = vec![0.0f32; SCALARS];
     scalars[0] = (speed_mps / speed_scale_mps) as f32;
     scalars[1] = (target_speed_mps / speed_scale_mps) as f32;
-    scalars[2] = aggressiveness as f32;
+    scalars[AGGRESSIVENESS_SCALAR] = aggressiveness as f32;
     if let Some(last) = last_action {
-        scalars[3 + last as usize] = 1.0;
+        scalars[LAST_ACTION_SCALARS.start + last as usize] = 1.0;
     }
     scalars
 }

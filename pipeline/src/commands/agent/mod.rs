@@ -13,6 +13,7 @@
 
 mod episodes;
 mod eval;
+mod offline;
 pub mod tasks;
 pub(crate) mod train;
 
@@ -116,6 +117,45 @@ pub struct TrainArgs {
     /// Greedy episodes of the finished agent logged to the rerun recording.
     #[arg(long, value_name = "N", default_value_t = 2)]
     pub record_episodes: usize,
+
+    /// Learn from recorded drivers instead of the simulator (roundabout insertion): the
+    /// go / wait decisions of every vehicle approaching the map's roundabout in the --log
+    /// files, with discrete CQL or behaviour cloning ([agent.offline]); --steps counts
+    /// gradient steps.
+    #[arg(long, requires = "logs")]
+    pub offline: bool,
+
+    /// A log to learn from with --offline (MCAP from `logs convert`, or any log with object
+    /// detections); repeat for several.
+    #[arg(long = "log", value_name = "FILE", requires = "offline")]
+    pub logs: Vec<PathBuf>,
+
+    /// The offline algorithm [default: algorithm of [agent.offline], cql].
+    #[arg(long, value_enum, requires = "offline")]
+    pub algorithm: Option<OfflineAlgorithmArg>,
+
+    /// With --offline: the target speed the drivers are told in the inputs (as
+    /// `replay eval --target-speed`), m/s.
+    #[arg(long, value_name = "MPS", default_value_t = 8.0)]
+    pub target_speed: f64,
+}
+
+/// `--algorithm` of `agent train --offline`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum OfflineAlgorithmArg {
+    /// Discrete conservative Q-learning (TD loss + α · (logsumexp Q − Q of the driver's action)).
+    Cql,
+    /// Behaviour cloning: the Q-network as a classifier of the driver's action.
+    Bc,
+}
+
+impl From<OfflineAlgorithmArg> for models::offline::OfflineAlgorithm {
+    fn from(a: OfflineAlgorithmArg) -> Self {
+        match a {
+            OfflineAlgorithmArg::Cql => models::offline::OfflineAlgorithm::Cql,
+            OfflineAlgorithmArg::Bc => models::offline::OfflineAlgorithm::BehaviourCloning,
+        }
+    }
 }
 
 #[derive(Debug, Args)]
@@ -167,6 +207,8 @@ pub struct AgentConfig {
     pub roundabout_driving: sim::tasks::RingDrivingConfig,
     /// Obstacle avoidance.
     pub obstacle: sim::tasks::obstacle::ObstacleConfig,
+    /// `agent train --offline` (the network and optimiser settings come from `[agent.dqn]`).
+    pub offline: models::offline::OfflineConfig,
 }
 
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same

@@ -35,6 +35,9 @@ pub const SUMMARY_FILE: &str = "summary.json";
 const RATE_WINDOW: usize = 100;
 
 pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
+    if args.offline {
+        return super::offline::train(ctx, args);
+    }
     match args.task {
         Task::RoundaboutInsertion => train_task::<Insertion>(ctx, args),
         Task::RouteFollowing => train_task::<Route>(ctx, args),
@@ -267,7 +270,7 @@ pub fn models_error(e: ModelError, context: &Path) -> anyhow::Error {
     }
 }
 
-pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+pub fn write_json<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<()> {
     let mut text = serde_json::to_string_pretty(value)
         .with_context(|| format!("{}: serialisation failed", path.display()))?;
     text.push('\n');
