@@ -396,3 +396,62 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     );
     assert!(!tmp.path().join("bad").exists());
 }
+
+/// Topic roles (issue 7): detected on the Husky drive (odometry and GPS, no objects), a
+/// named topic of the wrong type refused, and projection without an objects topic refused
+/// with the reason.
+#[test]
+fn topic_roles_are_detected_named_or_refused() {
+    let Some(data) = shared_data() else {
+        println!("skipped: ../shared/data is absent");
+        return;
+    };
+    let husky = data.join("logs/husky/husky.mcap");
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "info", "--json"])
+        .arg(&husky)
+        .output()
+        .unwrap();
+    assert_success(&out, "logs info --json");
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let roles = &info["roles"];
+    assert_eq!(roles["ego_pose"]["how"], "detected");
+    assert_eq!(
+        roles["ego_pose"]["topic"],
+        "/husky_velocity_controller/odom"
+    );
+    assert_eq!(roles["gps"]["topic"], "/fix");
+    assert_eq!(roles["objects"]["how"], "absent");
+    assert_eq!(roles["camera"]["how"], "absent");
+
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "info", "--gps-topic", "/imu/data"])
+        .arg(&husky)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("sensor_msgs/msg/Imu"),
+        "{}",
+        stderr(&out)
+    );
+
+    let tmp = tempfile::tempdir().unwrap();
+    let map = data.join("trajectories/interaction/maps/DR_USA_Roundabout_FT.osm");
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "project"])
+        .arg(&husky)
+        .arg("--map")
+        .arg(&map)
+        .arg("--out")
+        .arg(tmp.path().join("frames"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("no topic holds the object detections"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!tmp.path().join("frames").exists());
+}

@@ -33,9 +33,20 @@ pub struct Config {
     /// `[run]`: the maps and stage sizes of `pipeline run`.
     #[serde(default)]
     pub run: crate::commands::run::settings::RunConfig,
+    /// `[logs.roles]`: which topic of a log is the ego pose, the GPS, the objects, the camera.
+    #[serde(default)]
+    pub logs: LogsConfig,
     /// The folder of the file, for its relative paths (not part of the TOML).
     #[serde(skip)]
     pub base_dir: PathBuf,
+}
+
+/// `[logs]` of the config.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LogsConfig {
+    /// Topics named for roles; the others are detected (`datasets::logs::roles`).
+    pub roles: datasets::logs::roles::RoleConfig,
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

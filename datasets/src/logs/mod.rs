@@ -6,11 +6,14 @@
 //! - [`decode`] picks a decoder per topic: ROS messages in CDR or ROS 1 ([`msgs`] over
 //!   [`cdr`]), Foxglove schemas in protobuf or JSON ([`foxglove`]); unknown types are counted;
 //! - [`info`] summarises a log like `ros2 bag info`;
-//! - [`interaction`] reads INTERACTION track CSVs and [`convert`] writes them as MCAP.
+//! - [`interaction`] reads INTERACTION track CSVs and [`convert`] writes them as MCAP;
+//! - [`roles`] says which topic is the ego pose, the GPS, the objects, the camera (given or
+//!   detected);
+//! - [`project`] draws log frames in the simulator's bird's-eye representation, with
+//!   [`noise`] for perception noise; [`decisions`] labels drivers' go / wait decisions.
 //!
-//! Not here yet (docs/logs.md, "Not implemented"): topic roles (which topic is the ego pose,
-//! the GPS, the objects, the camera), ego and object tracks in a map frame, resampling, and
-//! the projection of log frames into scenes.
+//! Not here yet (docs/logs.md, "Not implemented"): ego tracks from odometry or GPS in a map
+//! frame, resampling and map matching.
 
 pub mod bag;
 pub mod cdr;
@@ -26,6 +29,7 @@ pub mod msgdefs;
 pub mod msgs;
 pub mod noise;
 pub mod project;
+pub mod roles;
 pub mod scenes;
 pub mod source;
 

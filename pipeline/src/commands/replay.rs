@@ -40,7 +40,7 @@ use sim::{Observation, ObservationSpec};
 use super::Context;
 use super::agent::train::{models_error, read_task, write_json};
 use super::dataset::generate::load_input_map;
-use super::logs::log_error;
+use super::logs::{RoleArgs, log_error, objects_topic};
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 
@@ -415,7 +415,10 @@ pub(crate) struct ReplayLog {
     pub(crate) approaches: Vec<Approach>,
 }
 
+/// Reads a log's object frames (the objects topic of `[logs.roles]`, or the one detected)
+/// and finds its approaches.
 pub(crate) fn read_log(
+    ctx: &Context<'_>,
     map: &maps::Map,
     path: &std::path::Path,
     labels: &LabelConfig,
@@ -426,7 +429,8 @@ pub(crate) fn read_log(
     );
     let log = Log::open(path).map_err(log_error)?;
     let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;
-    let frames: Vec<LogFrame> = log_frames(&decoded, None);
+    let objects = objects_topic(ctx, path, &decoded, &RoleArgs::default())?;
+    let frames: Vec<LogFrame> = log_frames(&decoded, Some(&objects));
     let approaches = approaches(map, &frames, labels);
     Ok(ReplayLog {
         name,
@@ -498,7 +502,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         let mut go = Vec::new();
         for path in &args.train_logs {
             progress.step(&format!("behaviour cloning: reading {}", path.display()));
-            let log = read_log(&map, path, &labels)?;
+            let log = read_log(ctx, &map, path, &labels)?;
             for approach in &log.approaches {
                 let stacks = views.stacks(&map, &log.frames, approach);
                 for (i, ((stack, speed), label)) in
@@ -566,7 +570,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let mut logs = Vec::with_capacity(args.logs.len());
     for path in &args.logs {
         progress.step(&format!("reading {}", path.display()));
-        let log = read_log(&map, path, &labels)?;
+        let log = read_log(ctx, &map, path, &labels)?;
         progress.step(&format!(
             "{}: {} approaches",
             log.name,

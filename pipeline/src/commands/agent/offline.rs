@@ -9,8 +9,12 @@
 //! transition) and the task's reward for it, as far as a log tells it:
 //! - per step, `reward.speed` × speed / target speed;
 //! - `reward.to_not_permitted_penalty` when the driver went from go back to wait;
-//! - `reward.reach` at the approach's end, the crossing of the yield line (the episode
-//!   ends there: what happens in the ring is not the entry decision).
+//! - `reward.reach` at the episode's end.
+//!
+//! An episode goes on past the yield line for up to [`AFTER_CROSSING_S`] of the driver's
+//! frames in the ring, all go (the driver drove on): in the simulator an agent that learnt
+//! only the approach met the ring's views for the first time after entering and stopped there
+//! (1 to 5 % reaches, 86 to 89 % time-overs over 300 FT episodes).
 //!
 //! The headway and cut-in penalties, crashes and time-overs are not in the data: the drivers
 //! neither crashed nor timed out. The network ignores the aggressiveness input (the drivers'
@@ -24,7 +28,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use datasets::logs::decisions::{Decision, LabelConfig};
+use datasets::logs::decisions::{Approach, Decision, LabelConfig};
+use datasets::logs::project::LogFrame;
 use models::offline::{self, OfflineConfig, OfflineRecord, OfflineSummary, TransitionSet};
 use serde::Serialize;
 use sim::tasks::insertion::{AGGRESSIVENESS_SCALAR, Action, LAST_ACTION_SCALARS, RewardConfig};
@@ -42,6 +47,8 @@ use crate::output::AtomicDir;
 pub const OFFLINE_FILE: &str = "offline.json";
 /// The aggressiveness written into the inputs (the network ignores it).
 const LOGGED_AGGRESSIVENESS: f64 = 0.5;
+/// How long a driver's frames after the yield line stay in the episode, s.
+pub const AFTER_CROSSING_S: f64 = 15.0;
 
 #[derive(Debug, Serialize)]
 struct OfflineRun<'a> {
@@ -51,7 +58,7 @@ struct OfflineRun<'a> {
     target_speed_mps: f64,
     labels: LabelConfig,
     approaches: usize,
-    /// Frames per label over the approaches.
+    /// Frames per label over the episodes (the approaches, then the ring frames, all go).
     frames: BTreeMap<String, u64>,
     summary: &'a OfflineSummary,
     wall_seconds: f64,
@@ -132,8 +139,9 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let mut approaches = 0;
     for path in &args.logs {
         progress.step(&format!("reading {}", path.display()));
-        let log = read_log(&map, path, &labels)?;
+        let log = read_log(ctx, &map, path, &labels)?;
         for approach in &log.approaches {
+            let approach = &through_the_ring(approach, &log.frames);
             let stacks = views.stacks(&map, &log.frames, approach);
             let actions: Vec<Option<Action>> =
                 approach.labels.iter().map(|&l| driver_action(l)).collect();
@@ -263,6 +271,25 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         100.0 * summary.train_agreement,
     ));
     Ok(())
+}
+
+/// `approach` and the driver's frames after the yield line (up to [`AFTER_CROSSING_S`], while
+/// the track is seen), labelled go.
+fn through_the_ring(approach: &Approach, frames: &[LogFrame]) -> Approach {
+    let mut episode = approach.clone();
+    let Some(crossing) = frames.get(approach.crossed_at) else {
+        return episode;
+    };
+    let limit_ns = (AFTER_CROSSING_S * 1e9) as u64;
+    for (k, frame) in frames.iter().enumerate().skip(approach.crossed_at) {
+        let seen = frame.actors.iter().any(|a| a.id == approach.track);
+        if !seen || frame.time_ns.saturating_sub(crossing.time_ns) > limit_ns {
+            break;
+        }
+        episode.frames.push(k);
+        episode.labels.push(Decision::Go);
+    }
+    episode
 }
 
 /// The driver's action at a frame labelled `label`: go is Permitted; waiting for a gap or

@@ -6,22 +6,54 @@ use std::path::Path;
 use anyhow::Result;
 use datasets::logs::Log;
 use datasets::logs::info::{LogInfo, log_info};
+use datasets::logs::roles::{Assignment, Role, TopicRoles};
 
-use super::{InfoArgs, log_error};
+use super::{InfoArgs, log_error, topic_roles};
 use crate::commands::Context;
 
 pub fn run(ctx: &Context<'_>, args: &InfoArgs) -> Result<()> {
     let log = Log::open(&args.log).map_err(log_error)?;
     let info = log_info(&log).map_err(log_error)?;
+    let roles = topic_roles(
+        &args.log,
+        info.topics
+            .iter()
+            .map(|t| (t.name.as_str(), t.type_name.as_str(), t.encoding.as_str())),
+        &args.roles.over(&ctx.config.logs.roles),
+    )?;
     for warning in info_warnings(&info) {
         ctx.ui.warn(&warning);
     }
     if args.json {
-        ctx.ui.result(&serde_json::to_string_pretty(&info)?);
+        let mut value = serde_json::to_value(&info)?;
+        if let Some(object) = value.as_object_mut() {
+            object.insert("roles".into(), serde_json::to_value(&roles)?);
+        }
+        ctx.ui.result(&serde_json::to_string_pretty(&value)?);
     } else {
-        ctx.ui.result(&render(&info));
+        let mut text = render(&info);
+        text.push_str(&render_roles(&roles));
+        ctx.ui.result(&text);
     }
     Ok(())
+}
+
+/// One line per role: its topic and how it was chosen.
+fn render_roles(roles: &TopicRoles) -> String {
+    let mut s = String::new();
+    for (i, role) in Role::ALL.into_iter().enumerate() {
+        let value = match roles.get(role) {
+            Assignment::Given { topic } => format!("{topic} (given)"),
+            Assignment::Detected { topic } => format!("{topic} (detected)"),
+            Assignment::Ambiguous { candidates } => {
+                format!("ambiguous: {} (name one)", candidates.join(", "))
+            }
+            Assignment::Absent => "-".into(),
+        };
+        let key = if i == 0 { "Topic roles:" } else { "" };
+        let _ = writeln!(s, "{key:<19}{:<9} {value}", role.name());
+    }
+    s
 }
 
 /// What the reader had to skip or found inconsistent.

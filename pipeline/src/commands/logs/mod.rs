@@ -7,11 +7,12 @@ mod info;
 mod merge;
 mod project;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
 use datasets::logs::LogError;
+use datasets::logs::roles::{Role, RoleConfig, TopicRoles, assign_roles, topic_kind};
 
 use super::Context;
 use crate::error::CliError;
@@ -40,6 +41,69 @@ pub struct InfoArgs {
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
+
+    #[command(flatten)]
+    pub roles: RoleArgs,
+}
+
+/// Topics named for roles on the command line (over `[logs.roles]` of the config); a role
+/// named nowhere is detected where that is unambiguous (docs/logs.md, "Topic roles").
+#[derive(Debug, Clone, Default, Args)]
+pub struct RoleArgs {
+    /// Topic of the ego's pose (nav_msgs/Odometry, geometry_msgs/PoseStamped or
+    /// PoseWithCovarianceStamped, foxglove.PoseInFrame).
+    #[arg(long, value_name = "TOPIC")]
+    pub ego_topic: Option<String>,
+
+    /// Topic of the ego's GPS fix (sensor_msgs/NavSatFix, foxglove.LocationFix).
+    #[arg(long, value_name = "TOPIC")]
+    pub gps_topic: Option<String>,
+
+    /// Topic of the other road users (vision_msgs/Detection3DArray).
+    #[arg(long, value_name = "TOPIC")]
+    pub objects_topic: Option<String>,
+
+    /// Topic of the camera (sensor_msgs/Image or CompressedImage, foxglove.CompressedImage).
+    #[arg(long, value_name = "TOPIC")]
+    pub camera_topic: Option<String>,
+}
+
+impl RoleArgs {
+    /// The roles named here, else in `config`.
+    pub fn over(&self, config: &RoleConfig) -> RoleConfig {
+        RoleConfig {
+            ego_pose: self.ego_topic.clone().or_else(|| config.ego_pose.clone()),
+            gps: self.gps_topic.clone().or_else(|| config.gps.clone()),
+            objects: self
+                .objects_topic
+                .clone()
+                .or_else(|| config.objects.clone()),
+            camera: self.camera_topic.clone().or_else(|| config.camera.clone()),
+        }
+    }
+}
+
+/// The roles of `topics` (name, type name, message encoding) in `log`: named by `config`
+/// or detected; a named topic that is missing or of the wrong type is an error naming the
+/// log.
+pub fn topic_roles<'a>(
+    log: &Path,
+    topics: impl IntoIterator<Item = (&'a str, &'a str, &'a str)>,
+    config: &RoleConfig,
+) -> Result<TopicRoles> {
+    let topics: Vec<(String, Option<datasets::logs::MessageKind>)> = topics
+        .into_iter()
+        .map(|(name, ty, encoding)| (name.to_owned(), topic_kind(ty, encoding)))
+        .collect();
+    assign_roles(&topics, config).map_err(|e| {
+        CliError::file(
+            log,
+            e,
+            "name the topic with --ego-topic / --gps-topic / --objects-topic / --camera-topic or [logs.roles] \
+             (`pipeline logs info` lists the topics and their types)",
+        )
+        .into()
+    })
 }
 
 #[derive(Debug, Args)]
@@ -92,4 +156,30 @@ pub(crate) fn log_error(err: LogError) -> anyhow::Error {
         LogError::Config(_) => "see `pipeline logs --help`",
     };
     CliError::new(err.to_string(), hint).into()
+}
+
+/// The topic of `decoded`'s object detections: named by `args` or `[logs.roles]`, or
+/// detected; an error naming the log when there is none or several.
+pub fn objects_topic(
+    ctx: &Context<'_>,
+    log: &Path,
+    decoded: &datasets::logs::DecodedLog,
+    args: &RoleArgs,
+) -> Result<String> {
+    let roles = topic_roles(
+        log,
+        decoded
+            .topics
+            .iter()
+            .map(|t| (t.name.as_str(), t.type_name.as_str(), t.encoding.as_str())),
+        &args.over(&ctx.config.logs.roles),
+    )?;
+    let topic = roles.require(Role::Objects).map_err(|e| {
+        CliError::file(
+            log,
+            e,
+            "name the topic with --objects-topic or [logs.roles] objects, or convert tracks with `pipeline logs convert`",
+        )
+    })?;
+    Ok(topic.to_owned())
 }

@@ -26,7 +26,7 @@ use image::RgbImage;
 use serde_json::json;
 use sim::render::{BevConfig, BevRenderer, Layer};
 
-use super::log_error;
+use super::{RoleArgs, log_error, objects_topic};
 use crate::commands::Context;
 use crate::commands::dataset::generate::load_input_map;
 use crate::error::CliError;
@@ -58,9 +58,8 @@ pub struct ProjectArgs {
     #[arg(long, value_name = "TRACK_ID")]
     pub ego: Option<u32>,
 
-    /// Topic of the vision_msgs/Detection3DArray frames [default: /objects].
-    #[arg(long, value_name = "TOPIC")]
-    pub objects_topic: Option<String>,
+    #[command(flatten)]
+    pub roles: RoleArgs,
 
     /// PNG previews written (evenly spread over the frames).
     #[arg(long, value_name = "N", default_value_t = 4)]
@@ -176,14 +175,12 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
     progress.step(&format!("reading {}", args.log.display()));
     let log = Log::open(&args.log).map_err(log_error)?;
     let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;
-    let frames: Vec<LogFrame> = log_frames(&decoded, args.objects_topic.as_deref());
+    let objects = objects_topic(ctx, &args.log, &decoded, &args.roles)?;
+    let frames: Vec<LogFrame> = log_frames(&decoded, Some(&objects));
     if frames.is_empty() {
         return Err(CliError::file(
             &args.log,
-            format!(
-                "has no vision_msgs/Detection3DArray frames on {}",
-                args.objects_topic.as_deref().unwrap_or("/objects")
-            ),
+            format!("has no vision_msgs/Detection3DArray frames on {objects}"),
             "give --objects-topic (see `pipeline logs info`), or convert tracks with `pipeline logs convert`",
         )
         .into());
