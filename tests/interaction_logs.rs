@@ -455,3 +455,66 @@ fn topic_roles_are_detected_named_or_refused() {
     );
     assert!(!tmp.path().join("frames").exists());
 }
+
+/// `logs ego` (issue 7: GPS into the map frame, resampling, map matching): FT 000 converted
+/// with track 60 as the ego; its track from the odometry and from the GPS fixes (unprojected
+/// by the converter, projected back here) agree to the millimetre, lie on the map's lanes,
+/// and resample to the asked rate.
+#[test]
+fn the_ego_track_from_pose_or_gps_lies_on_the_lanes() {
+    let Some(data) = shared_data() else {
+        println!("skipped: ../shared/data is absent");
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let base = data.join("trajectories/interaction");
+    let map = base.join("maps/DR_USA_Roundabout_FT.osm");
+    let log = tmp.path().join("ft_000_60.mcap");
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "convert"])
+        .arg(base.join("recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_000.csv.gz"))
+        .arg("--map")
+        .arg(&map)
+        .args(["--ego", "60", "--out"])
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert_success(&out, "logs convert --ego 60");
+    let ego = |source: &str, rate: &str| {
+        let file = tmp.path().join(format!("ego_{source}_{rate}.json"));
+        let out = pipeline()
+            .args([
+                "--rerun", "off", "logs", "ego", "--source", source, "--rate", rate,
+            ])
+            .arg(&log)
+            .arg("--map")
+            .arg(&map)
+            .arg("--out")
+            .arg(&file)
+            .output()
+            .unwrap();
+        assert_success(&out, "logs ego");
+        read_json(&file)
+    };
+    let pose = ego("pose", "10");
+    let gps = ego("gps", "10");
+    assert_eq!(pose["topic"], "/ego/odom");
+    assert_eq!(gps["topic"], "/ego/fix");
+    let samples = |v: &serde_json::Value| v["samples"].as_array().unwrap().clone();
+    let (a, b) = (samples(&pose), samples(&gps));
+    assert_eq!(a.len(), 547);
+    assert_eq!(a.len(), b.len());
+    for (p, q) in a.iter().zip(&b) {
+        let d = (p["x"].as_f64().unwrap() - q["x"].as_f64().unwrap())
+            .hypot(p["y"].as_f64().unwrap() - q["y"].as_f64().unwrap());
+        assert!(d < 1e-3, "{p} vs {q}");
+    }
+    for v in [&pose, &gps] {
+        let share = v["on_lane_share"].as_f64().unwrap();
+        assert!(share > 0.95, "on a lane {share}");
+    }
+    // 4 Hz over the same 54.6 s: 219 samples.
+    let slow = ego("pose", "4");
+    assert_eq!(slow["resampling"]["resampled"], 219);
+    assert_eq!(slow["resampling"]["recorded"], 547);
+}

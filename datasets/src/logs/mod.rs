@@ -12,14 +12,15 @@
 //! - [`project`] draws log frames in the simulator's bird's-eye representation, with
 //!   [`noise`] for perception noise; [`decisions`] labels drivers' go / wait decisions.
 //!
-//! Not here yet (docs/logs.md, "Not implemented"): ego tracks from odometry or GPS in a map
-//! frame, resampling and map matching.
+//! - [`ego`] takes the ego's track from its pose or GPS topic into a map's frame, resamples
+//!   it and matches it to lanes.
 
 pub mod bag;
 pub mod cdr;
 pub mod convert;
 pub mod decisions;
 pub mod decode;
+pub mod ego;
 pub mod error;
 pub mod foxglove;
 pub mod info;

@@ -3,6 +3,7 @@
 //! representation, and the shards of a projection merged.
 
 mod convert;
+mod ego;
 mod info;
 mod merge;
 mod project;
@@ -31,6 +32,9 @@ pub enum LogsCommand {
     /// Put the frame folders of one `logs project --shard i/n` run back together (the
     /// unsharded run's folder, byte for byte).
     Merge(merge::MergeArgs),
+    /// The ego's track from the ego-pose or GPS topic in a map's frame, resampled to a
+    /// fixed rate and matched to the map's lanes, as JSON.
+    Ego(ego::EgoArgs),
 }
 
 #[derive(Debug, Args)]
@@ -142,6 +146,7 @@ pub fn run(ctx: &Context<'_>, command: &LogsCommand) -> Result<()> {
         LogsCommand::Convert(args) => convert::run(ctx, args),
         LogsCommand::Project(args) => project::run(ctx, args),
         LogsCommand::Merge(args) => merge::run(ctx, args),
+        LogsCommand::Ego(args) => ego::run(ctx, args),
     }
 }
 
