@@ -247,9 +247,15 @@ fn replay_shards_add_up_to_the_unsharded_report() {
     assert_same_files(&whole, &merged);
 
     // With behaviour cloning (trained in each shard, the same network whatever the thread
-    // count): the same report too. FT 000 both teaches and is evaluated: a check of the
-    // sums, not a figure.
-    let bc = ["--train-log", log.to_str().unwrap(), "--bc-stride", "8"];
+    // count) and closed loop: the same report too. FT 000 both teaches and is evaluated: a
+    // check of the sums, not a figure.
+    let bc = [
+        "--train-log",
+        log.to_str().unwrap(),
+        "--bc-stride",
+        "8",
+        "--closed-loop",
+    ];
     let whole_bc = tmp.path().join("whole_bc");
     assert_success(&eval("2", &bc, &whole_bc), "unsharded replay eval with BC");
     let mut bc_shards = Vec::new();
@@ -266,6 +272,24 @@ fn replay_shards_add_up_to_the_unsharded_report() {
         "replay merge --shards with BC",
     );
     assert_same_files(&whole_bc, &merged_bc);
+    // Closed loop: every policy drove every approach, each episode ended one way.
+    let report = read_json(&whole_bc.join("replay.json"));
+    let loops = report["closed_loop"].as_array().unwrap();
+    assert_eq!(loops.len(), report["policies"].as_array().unwrap().len());
+    for l in loops {
+        assert_eq!(l["episodes"], report["approaches"], "{l}");
+        let shares: f64 = ["reached", "crashed", "rear_ended", "time_over"]
+            .iter()
+            .map(|k| l[*k].as_f64().unwrap())
+            .sum();
+        assert!((shares - 1.0).abs() < 1e-9, "{l}");
+        assert!(l["mean_log_divergence_m"].as_f64().unwrap() >= 0.0, "{l}");
+    }
+    assert!(
+        std::fs::read_to_string(merged_bc.join("replay.md"))
+            .unwrap()
+            .contains("## Closed loop")
+    );
     assert!(
         std::fs::read_to_string(merged_bc.join("replay.md"))
             .unwrap()

@@ -10,13 +10,15 @@
 //! - [`roles`] says which topic is the ego pose, the GPS, the objects, the camera (given or
 //!   detected);
 //! - [`project`] draws log frames in the simulator's bird's-eye representation, with
-//!   [`noise`] for perception noise; [`decisions`] labels drivers' go / wait decisions.
+//!   [`noise`] for perception noise; [`decisions`] labels drivers' go / wait decisions;
+//!   [`closed_loop`] lets a policy drive a recorded vehicle among the replayed others.
 //!
 //! - [`ego`] takes the ego's track from its pose or GPS topic into a map's frame, resamples
 //!   it and matches it to lanes.
 
 pub mod bag;
 pub mod cdr;
+pub mod closed_loop;
 pub mod convert;
 pub mod decisions;
 pub mod decode;

@@ -23,6 +23,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
+use datasets::logs::closed_loop::{
+    ClosedLoopConfig, ClosedLoopEpisode, ClosedLoopOutcome, ClosedLoopView, Command, drive,
+};
 use datasets::logs::decisions::{Approach, Decision, LabelConfig, approaches};
 use datasets::logs::decode::read_decoded;
 use datasets::logs::noise::NoiseConfig;
@@ -115,6 +118,12 @@ pub struct EvalArgs {
     /// (docs/scaling.md). Each shard trains behaviour cloning itself (the same network).
     #[arg(long, value_name = "i/n", value_parser = Shard::parse)]
     pub shard: Option<Shard>,
+
+    /// Also closed loop: each policy drives each approach's vehicle along its driver's path
+    /// while the other road users replay the log (reaches, crashes, time-overs, log
+    /// divergence).
+    #[arg(long)]
+    pub closed_loop: bool,
 }
 
 pub fn run(ctx: &Context<'_>, command: &ReplayCommand) -> Result<()> {
@@ -122,6 +131,84 @@ pub fn run(ctx: &Context<'_>, command: &ReplayCommand) -> Result<()> {
         ReplayCommand::Eval(args) => eval(ctx, args),
         ReplayCommand::Merge(args) => merge(ctx, args),
     }
+}
+
+/// What one policy did in closed loop, as counts and per-episode figures (in approach
+/// order, so that shards put one after the other give the unsharded means to the bit).
+#[derive(Debug, Default, Clone, PartialEq, Serialize, Deserialize)]
+struct LoopTally {
+    policy: String,
+    episodes: u64,
+    reached: u64,
+    crashed: u64,
+    /// Hit from behind by a replayed road user (which cannot react).
+    rear_ended: u64,
+    time_over: u64,
+    /// Per episode: the mean distance to the driver's position, m.
+    divergences_m: Vec<f64>,
+    /// Per episode that entered: its crossing of the yield line minus its driver's, s.
+    entry_delays_s: Vec<f64>,
+}
+
+impl LoopTally {
+    fn new(policy: String) -> LoopTally {
+        LoopTally {
+            policy,
+            ..Default::default()
+        }
+    }
+
+    fn add(&mut self, episode: &ClosedLoopEpisode) {
+        self.episodes += 1;
+        match episode.outcome {
+            ClosedLoopOutcome::Reached => self.reached += 1,
+            ClosedLoopOutcome::Crashed => self.crashed += 1,
+            ClosedLoopOutcome::RearEnded => self.rear_ended += 1,
+            ClosedLoopOutcome::TimeOver => self.time_over += 1,
+        }
+        self.divergences_m.push(episode.log_divergence_m);
+        self.entry_delays_s.extend(episode.entry_delay_s);
+    }
+
+    fn absorb(&mut self, other: &LoopTally) {
+        self.episodes += other.episodes;
+        self.reached += other.reached;
+        self.crashed += other.crashed;
+        self.rear_ended += other.rear_ended;
+        self.time_over += other.time_over;
+        self.divergences_m.extend_from_slice(&other.divergences_m);
+        self.entry_delays_s.extend_from_slice(&other.entry_delays_s);
+    }
+
+    fn score(&self) -> LoopScore {
+        let n = self.episodes.max(1) as f64;
+        let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+        LoopScore {
+            policy: self.policy.clone(),
+            episodes: self.episodes,
+            reached: self.reached as f64 / n,
+            crashed: self.crashed as f64 / n,
+            rear_ended: self.rear_ended as f64 / n,
+            time_over: self.time_over as f64 / n,
+            mean_log_divergence_m: mean(&self.divergences_m).unwrap_or(0.0),
+            mean_entry_delay_s: mean(&self.entry_delays_s),
+        }
+    }
+}
+
+/// How one policy did in closed loop.
+#[derive(Debug, Clone, Serialize)]
+struct LoopScore {
+    policy: String,
+    episodes: u64,
+    reached: f64,
+    crashed: f64,
+    rear_ended: f64,
+    time_over: f64,
+    /// Mean over episodes of the mean distance to the driver's position at the same time, m.
+    mean_log_divergence_m: f64,
+    /// Mean over episodes that entered of the entry time minus the driver's, s.
+    mean_entry_delay_s: Option<f64>,
 }
 
 /// What one policy did, as counts that shards add up.
@@ -238,6 +325,9 @@ struct Counts {
     approaches_with_a_stop: usize,
     frames: BTreeMap<String, u64>,
     policies: Vec<Tally>,
+    /// With --closed-loop.
+    #[serde(default)]
+    closed_loop: Vec<LoopTally>,
 }
 
 impl Counts {
@@ -262,6 +352,12 @@ impl Counts {
             *self.frames.entry(k.clone()).or_default() += n;
         }
         for (mine, theirs) in self.policies.iter_mut().zip(&other.policies) {
+            mine.absorb(theirs);
+        }
+        if self.closed_loop.len() != other.closed_loop.len() {
+            return Err("another closed-loop setting".into());
+        }
+        for (mine, theirs) in self.closed_loop.iter_mut().zip(&other.closed_loop) {
             mine.absorb(theirs);
         }
         Ok(())
@@ -289,6 +385,9 @@ struct Report {
     approaches_with_a_stop: usize,
     frames: BTreeMap<String, u64>,
     policies: Vec<Score>,
+    /// With --closed-loop.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    closed_loop: Vec<LoopScore>,
 }
 
 impl Report {
@@ -304,6 +403,7 @@ impl Report {
             approaches_with_a_stop: counts.approaches_with_a_stop,
             frames: counts.frames,
             policies: counts.policies.into_iter().map(Tally::score).collect(),
+            closed_loop: counts.closed_loop.iter().map(LoopTally::score).collect(),
         }
     }
 }
@@ -563,6 +663,19 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             .iter()
             .map(|a| Tally::new(format!("agent, aggressiveness {a}"))),
     );
+    // Closed loop: the same policies, Caution as itself.
+    let mut loops: Vec<LoopTally> = if args.closed_loop {
+        scores
+            .iter()
+            .map(|t| LoopTally::new(t.policy.clone()))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let loop_config = ClosedLoopConfig {
+        target_speed_mps: args.target_speed,
+        ..ClosedLoopConfig::default()
+    };
     let mut frame_counts: BTreeMap<String, u64> = BTreeMap::new();
     let (mut n_approaches, mut n_stopped) = (0, 0);
 
@@ -603,6 +716,21 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                 .map(|near| threshold.is_none_or(|t| *near > t))
                 .collect();
             score_approach(score, &log.name, approach, &log.frames, &goes);
+        }
+        if args.closed_loop {
+            closed_loop(
+                &map,
+                &views,
+                log,
+                approach,
+                &loop_config,
+                &thresholds,
+                bc.as_ref().map(|(network, _)| network),
+                agent.as_ref(),
+                &levels,
+                &device,
+                &mut loops,
+            );
         }
         if bc.is_none() && agent.is_none() {
             continue;
@@ -647,6 +775,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         approaches_with_a_stop: n_stopped,
         frames: frame_counts,
         policies: scores,
+        closed_loop: loops,
     };
     drop(progress);
     match args.shard {
@@ -742,6 +871,75 @@ fn merge(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
     write_report(ctx, &out, &Report::new(settings, counts))
 }
 
+/// Drives `approach` closed loop with every policy (in the order of `loops`: the rules and
+/// always go, behaviour cloning, the agent per level) and adds the episodes up.
+#[allow(clippy::too_many_arguments)]
+fn closed_loop(
+    map: &maps::Map,
+    views: &Views,
+    log: &ReplayLog,
+    approach: &Approach,
+    config: &ClosedLoopConfig,
+    thresholds: &[Option<f64>],
+    bc: Option<&models::qnet::QNetwork>,
+    agent: Option<&QPolicy>,
+    levels: &[f64],
+    device: &burn::tensor::Device,
+    loops: &mut [LoopTally],
+) {
+    let mut tallies = loops.iter_mut();
+    let mut run = |policy: &mut dyn FnMut(&ClosedLoopView<'_>) -> Command| {
+        if let (Some(tally), Some(episode)) = (
+            tallies.next(),
+            drive(map, &views.renderer, &log.frames, approach, config, policy),
+        ) {
+            tally.add(&episode);
+        }
+    };
+    for threshold in thresholds {
+        run(&mut |view: &ClosedLoopView<'_>| {
+            let near = nearest_circulating(map, view.frame, approach.track);
+            if threshold.is_none_or(|t| near > t) {
+                Command::Go
+            } else {
+                Command::Wait
+            }
+        });
+    }
+    if let Some(network) = bc {
+        run(&mut |view: &ClosedLoopView<'_>| {
+            let observation = views.observation(
+                view.layers.to_vec(),
+                view.speed_mps,
+                BC_AGGRESSIVENESS,
+                None,
+            );
+            let go = bc::predict(network, &[observation], &views.spec(), device);
+            if go.first() == Some(&true) {
+                Command::Go
+            } else {
+                Command::Wait
+            }
+        });
+    }
+    if let Some(policy) = agent {
+        for &level in levels {
+            let mut last = Action::Permitted;
+            run(&mut |view: &ClosedLoopView<'_>| {
+                let observation =
+                    views.observation(view.layers.to_vec(), view.speed_mps, level, Some(last));
+                let q = policy.q_values(&[&observation]);
+                last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
+                match last {
+                    Action::Permitted => Command::Go,
+                    Action::NotPermitted => Command::Wait,
+                    Action::Caution => Command::Caution,
+                }
+            });
+        }
+    }
+}
+
 /// Scores one approach's decisions (`goes[i]` at the approach's i-th frame).
 fn score_approach(
     score: &mut Tally,
@@ -782,6 +980,33 @@ fn nearest_circulating(map: &maps::Map, frame: &LogFrame, track: u32) -> f64 {
 }
 
 fn markdown(r: &Report) -> String {
+    let mut md = open_loop_markdown(r);
+    if !r.closed_loop.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n## Closed loop\n\nEach policy drives every approach's vehicle along its driver's path from the approach's start; the other road users replay the log and cannot react (*rear-ended*: hit from behind by one of them). Divergence: mean distance to the driver's position at the same time.\n\n| policy | episodes | reached | crashed | rear-ended | time over | log divergence m | entry delay s |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"
+        );
+        for l in &r.closed_loop {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} |",
+                l.policy,
+                l.episodes,
+                100.0 * l.reached,
+                100.0 * l.crashed,
+                100.0 * l.rear_ended,
+                100.0 * l.time_over,
+                l.mean_log_divergence_m,
+                l.mean_entry_delay_s
+                    .map_or("-".into(), |d| format!("{d:+.2}"))
+            );
+        }
+    }
+    md
+}
+
+/// The open-loop part of replay.md.
+fn open_loop_markdown(r: &Report) -> String {
     let mut md = String::new();
     let go = r.frames.get("go").copied().unwrap_or(0);
     let wait = r.frames.get("wait").copied().unwrap_or(0);
