@@ -13,7 +13,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assert_success, pipeline, read_json, shared_data, stderr};
+use common::{assert_refused, assert_success, pipeline, read_json, shared_data, stderr};
 
 /// The FT map, and recording `n` converted into `dir` (None without ../shared/data).
 fn ft_recording(dir: &Path, n: u32) -> Option<(PathBuf, PathBuf)> {
@@ -388,13 +388,11 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         .arg(tmp.path().join("bad"))
         .output()
         .unwrap();
-    assert!(!out.status.success());
-    assert!(
-        stderr(&out).contains("--offline learns roundabout insertion"),
-        "{}",
-        stderr(&out)
+    assert_refused(
+        &out,
+        "--offline learns roundabout insertion",
+        &tmp.path().join("bad"),
     );
-    assert!(!tmp.path().join("bad").exists());
 }
 
 /// Topic roles (issue 7): detected on the Husky drive (odometry and GPS, no objects), a
@@ -447,13 +445,11 @@ fn topic_roles_are_detected_named_or_refused() {
         .arg(tmp.path().join("frames"))
         .output()
         .unwrap();
-    assert!(!out.status.success());
-    assert!(
-        stderr(&out).contains("no topic holds the object detections"),
-        "{}",
-        stderr(&out)
+    assert_refused(
+        &out,
+        "no topic holds the object detections",
+        &tmp.path().join("frames"),
     );
-    assert!(!tmp.path().join("frames").exists());
 }
 
 /// `logs ego` (issue 7: GPS into the map frame, resampling, map matching): FT 000 converted

@@ -73,6 +73,18 @@ pub fn assert_success(out: &Output, what: &str) {
     );
 }
 
+/// Fails the test unless the command failed with `message` in its stderr and `output`
+/// (what it was asked to write) does not exist.
+pub fn assert_refused(out: &Output, message: &str, output: &Path) {
+    assert!(
+        !out.status.success(),
+        "expected a failure mentioning {message:?}; stdout:\n{}",
+        stdout(out)
+    );
+    assert!(stderr(out).contains(message), "{}", stderr(out));
+    assert!(!output.exists(), "{} was written", output.display());
+}
+
 /// A small valid OSM XML: a residential cross of four ways meeting at node 5, plus a
 /// footway. Enough for an import that needs no shared data.
 pub const SMALL_OSM: &str = r#"<?xml version="1.0" encoding="UTF-8"?>
