@@ -11,6 +11,9 @@ with `osmium cat` once beforehand, outside the timing.
 
 Usage (from the repository root, after `cargo build --release -p pipeline`):
     SUMO_HOME=/usr/share/sumo python3 scripts/bench_map_import.py [--runs 7] [--out docs/benchmarks/map_import.json]
+        [--pipeline PATH]
+The binary is $CARGO_TARGET_DIR/release/pipeline when CARGO_TARGET_DIR is set, else
+target/release/pipeline; --pipeline names another.
 Needs: netconvert (Debian `sumo`), osmium (Debian `osmium-tool`).
 """
 import argparse
@@ -27,7 +30,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data" / "osm"
-PIPELINE = ROOT / "target" / "release" / "pipeline"
+TARGET_DIR = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+PIPELINE = TARGET_DIR / "release" / "pipeline"
 CASES = [
     # (label, our input, netconvert's XML input or None to convert the PBF)
     ("northwestern_nu (XML)", "northwestern_nu.osm", "northwestern_nu.osm"),
@@ -51,17 +55,20 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "map_import.json"))
+    ap.add_argument("--pipeline", type=Path, default=PIPELINE, help=f"the binary to time (default {PIPELINE})")
     args = ap.parse_args()
+    pipeline = args.pipeline
     if args.runs < 5:
         sys.exit("--runs must be at least 5 (the figure is a median)")
     for tool in ("netconvert", "osmium"):
         if not shutil.which(tool):
             sys.exit(f"{tool} not found: apt-get install sumo osmium-tool")
-    if not PIPELINE.exists():
-        sys.exit(f"{PIPELINE} not found: cargo build --release -p pipeline")
+    if not pipeline.exists():
+        sys.exit(f"{pipeline} not found: cargo build --release -p pipeline")
     env = dict(os.environ, SUMO_HOME=os.environ.get("SUMO_HOME", "/usr/share/sumo"))
     version = subprocess.run(["netconvert", "--version"], capture_output=True, text=True, env=env).stdout.splitlines()[0]
     results = []
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for label, ours_in, their_in in CASES:
@@ -75,7 +82,7 @@ def main():
 
             def ours():
                 n[0] += 1
-                return timed([str(PIPELINE), "-q", "map", "import", str(ours_path), "--out", str(tmp / f"ours{n[0]}")])
+                return timed([str(pipeline), "-q", "map", "import", str(ours_path), "--out", str(tmp / f"ours{n[0]}")])
 
             def theirs():
                 return timed(["netconvert", "--osm-files", str(their_path), *NETCONVERT_OPTS, "-o", str(tmp / "net.xml")], env)
@@ -102,6 +109,9 @@ def main():
         "runs": args.runs,
         "netconvert": version,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+        # Other work on the machine slows both tools; the 1, 5 and 15 minute load averages.
+        "load_average_before": [round(x, 2) for x in load_before],
+        "load_average_after": [round(x, 2) for x in os.getloadavg()],
         "date": time.strftime("%Y-%m-%d"),
         "results": results,
     }

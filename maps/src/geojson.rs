@@ -16,29 +16,27 @@
 //! rounding are dropped. Polygon rings are closed and counter-clockwise, as RFC 7946 asks.
 
 use serde::Serialize;
-use serde_json::{Value, json};
 
 use crate::error::MapError;
 use crate::geometry::Point;
-use crate::model::{Direction, Map, RoundaboutSource, StopKind, StopLineSource};
+use crate::model::{Direction, LaneId, Map, RoadId, RoundaboutSource, StopKind, StopLineSource};
 use crate::projection::Projector;
 
 /// A GeoJSON `FeatureCollection`. Serialising it gives the members in the usual order
-/// (`type` first), which a `serde_json::Value` with its sorted keys would not.
+/// (`type` first).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FeatureCollection {
+pub struct FeatureCollection<'a> {
     #[serde(rename = "type")]
     pub kind: &'static str,
-    pub features: Vec<Feature>,
+    pub features: Vec<Feature<'a>>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Feature {
+pub struct Feature<'a> {
     #[serde(rename = "type")]
     pub kind: &'static str,
     pub geometry: Geometry,
-    /// An object; its keys come out sorted.
-    pub properties: Value,
+    pub properties: Properties<'a>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -46,6 +44,88 @@ pub struct Feature {
 pub enum Geometry {
     LineString(Vec<[f64; 2]>),
     Polygon(Vec<Vec<[f64; 2]>>),
+}
+
+/// A feature's properties, borrowed from the map. The fields of each kind are in
+/// alphabetical order, so the keys come out sorted as in a `serde_json::Value` object (the
+/// form files were written in before, without building a `Value` per feature).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum Properties<'a> {
+    Road {
+        allows_cars: bool,
+        highway: &'a str,
+        id: u32,
+        kind: &'static str,
+        lanes_backward: usize,
+        lanes_forward: usize,
+        name: Option<&'a str>,
+        osm_way_ids: &'a [i64],
+        roundabout: bool,
+        speed_limit_is_default: bool,
+        speed_limit_kmh: f64,
+    },
+    Lane {
+        direction: &'static str,
+        id: u32,
+        index_from_centre: u8,
+        kind: &'static str,
+        length_m: f64,
+        road: u32,
+        speed_limit_kmh: f64,
+        turns: &'a [String],
+        width_m: f64,
+    },
+    Junction {
+        control: Option<&'a str>,
+        id: u32,
+        kind: &'static str,
+        osm_node_id: Option<i64>,
+        roads: &'a [RoadId],
+    },
+    Roundabout {
+        circulating_lanes: &'a [LaneId],
+        clockwise: bool,
+        entries: usize,
+        exits: usize,
+        guessed: bool,
+        id: u32,
+        kind: &'static str,
+        osm_way_ids: &'a [i64],
+        radius_m: f64,
+        source: RoundaboutSource,
+        yield_lines: usize,
+    },
+    /// `kind` is `stop_line` or `give_way`.
+    StopLine {
+        id: u32,
+        kind: &'static str,
+        lanes: &'a [LaneId],
+        source: StopSource,
+    },
+}
+
+impl Properties<'_> {
+    /// The `kind` property.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Properties::Road { kind, .. }
+            | Properties::Lane { kind, .. }
+            | Properties::Junction { kind, .. }
+            | Properties::Roundabout { kind, .. }
+            | Properties::StopLine { kind, .. } => kind,
+        }
+    }
+}
+
+/// Where a stop line comes from: `{"osm_node": id}`, `{"roundabout_entry": id}` or
+/// `{"lanelet_way": id}`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopSource {
+    OsmNode(i64),
+    RoundaboutEntry(u32),
+    LaneletWay(i64),
 }
 
 /// Decimal places kept in coordinates: 1e-7 degrees is about 1 cm.
@@ -119,12 +199,12 @@ fn direction_name(d: Direction) -> &'static str {
 
 /// The map as a GeoJSON `FeatureCollection`: roads, lanes, junction areas, roundabouts and
 /// stop lines, in that order and in id order within each kind.
-pub fn to_geojson(map: &Map) -> FeatureCollection {
+pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
     let c = Converter {
         projector: map.projection.projector(),
     };
     let mut features = Vec::new();
-    let mut push = |geometry: Option<Geometry>, properties: Value| {
+    let mut push = |geometry: Option<Geometry>, properties: Properties<'a>| {
         if let Some(geometry) = geometry {
             features.push(Feature {
                 kind: "Feature",
@@ -137,35 +217,35 @@ pub fn to_geojson(map: &Map) -> FeatureCollection {
     for road in map.roads.values() {
         push(
             c.line(&road.reference_line),
-            json!({
-                "kind": "road",
-                "id": road.id.0,
-                "osm_way_ids": road.osm_way_ids,
-                "highway": road.highway,
-                "name": road.name,
-                "lanes_forward": road.lanes_forward.len(),
-                "lanes_backward": road.lanes_backward.len(),
-                "speed_limit_kmh": road.speed_limit_kmh,
-                "speed_limit_is_default": road.speed_limit_is_default,
-                "roundabout": road.is_roundabout,
-                "allows_cars": road.allows_cars,
-            }),
+            Properties::Road {
+                allows_cars: road.allows_cars,
+                highway: &road.highway,
+                id: road.id.0,
+                kind: "road",
+                lanes_backward: road.lanes_backward.len(),
+                lanes_forward: road.lanes_forward.len(),
+                name: road.name.as_deref(),
+                osm_way_ids: &road.osm_way_ids,
+                roundabout: road.is_roundabout,
+                speed_limit_is_default: road.speed_limit_is_default,
+                speed_limit_kmh: road.speed_limit_kmh,
+            },
         );
     }
     for lane in map.lanes.values() {
         push(
             c.line(&lane.centre),
-            json!({
-                "kind": "lane",
-                "id": lane.id.0,
-                "road": lane.road.0,
-                "direction": direction_name(lane.direction),
-                "index_from_centre": lane.index_from_centre,
-                "width_m": lane.width_m,
-                "length_m": lane.length_m,
-                "speed_limit_kmh": lane.speed_limit_kmh,
-                "turns": lane.turns,
-            }),
+            Properties::Lane {
+                direction: direction_name(lane.direction),
+                id: lane.id.0,
+                index_from_centre: lane.index_from_centre,
+                kind: "lane",
+                length_m: lane.length_m,
+                road: lane.road.0,
+                speed_limit_kmh: lane.speed_limit_kmh,
+                turns: &lane.turns,
+                width_m: lane.width_m,
+            },
         );
     }
     for junction in map.junctions.values() {
@@ -174,13 +254,13 @@ pub fn to_geojson(map: &Map) -> FeatureCollection {
         }
         push(
             c.polygon(&junction.polygon),
-            json!({
-                "kind": "junction",
-                "id": junction.id.0,
-                "osm_node_id": junction.osm_node_id,
-                "roads": junction.roads.iter().map(|r| r.0).collect::<Vec<_>>(),
-                "control": junction.control,
-            }),
+            Properties::Junction {
+                control: junction.control.as_deref(),
+                id: junction.id.0,
+                kind: "junction",
+                osm_node_id: junction.osm_node_id,
+                roads: &junction.roads,
+            },
         );
     }
     for roundabout in map.roundabouts.values() {
@@ -208,19 +288,19 @@ pub fn to_geojson(map: &Map) -> FeatureCollection {
         };
         push(
             geometry,
-            json!({
-                "kind": "roundabout",
-                "id": roundabout.id.0,
-                "guessed": roundabout.source == RoundaboutSource::Guessed,
-                "source": roundabout.source,
-                "osm_way_ids": roundabout.osm_way_ids,
-                "entries": roundabout.entries.len(),
-                "exits": roundabout.exits.len(),
-                "yield_lines": roundabout.yield_lines.len(),
-                "circulating_lanes": roundabout.circulating_lanes.iter().map(|l| l.0).collect::<Vec<_>>(),
-                "radius_m": roundabout.radius_m,
-                "clockwise": roundabout.clockwise,
-            }),
+            Properties::Roundabout {
+                circulating_lanes: &roundabout.circulating_lanes,
+                clockwise: roundabout.clockwise,
+                entries: roundabout.entries.len(),
+                exits: roundabout.exits.len(),
+                guessed: roundabout.source == RoundaboutSource::Guessed,
+                id: roundabout.id.0,
+                kind: "roundabout",
+                osm_way_ids: &roundabout.osm_way_ids,
+                radius_m: roundabout.radius_m,
+                source: roundabout.source,
+                yield_lines: roundabout.yield_lines.len(),
+            },
         );
     }
     for stop in map.stop_lines.values() {
@@ -229,20 +309,20 @@ pub fn to_geojson(map: &Map) -> FeatureCollection {
             StopKind::GiveWay => "give_way",
         };
         let source = match &stop.source {
-            StopLineSource::OsmNode { id } => json!({ "osm_node": id }),
+            StopLineSource::OsmNode { id } => StopSource::OsmNode(*id),
             StopLineSource::RoundaboutEntry { roundabout } => {
-                json!({ "roundabout_entry": roundabout.0 })
+                StopSource::RoundaboutEntry(roundabout.0)
             }
-            StopLineSource::LaneletWay { id } => json!({ "lanelet_way": id }),
+            StopLineSource::LaneletWay { id } => StopSource::LaneletWay(*id),
         };
         push(
             c.line(&stop.line),
-            json!({
-                "kind": kind,
-                "id": stop.id.0,
-                "lanes": stop.lanes.iter().map(|l| l.0).collect::<Vec<_>>(),
-                "source": source,
-            }),
+            Properties::StopLine {
+                id: stop.id.0,
+                kind,
+                lanes: &stop.lanes,
+                source,
+            },
         );
     }
     FeatureCollection {
@@ -340,8 +420,8 @@ mod tests {
                 assert_eq!(round(*v), *v);
             }
         }
-        assert_eq!(fc.features[0].properties["kind"], "road");
-        assert_eq!(fc.features[1].properties["kind"], "junction");
+        assert_eq!(fc.features[0].properties.kind(), "road");
+        assert_eq!(fc.features[1].properties.kind(), "junction");
     }
 
     #[test]

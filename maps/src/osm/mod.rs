@@ -106,6 +106,15 @@ impl OsmData {
             .any(|r| r.tags.is("type", "lanelet"))
     }
 
+    /// Adds what was read after `self` in the same file: its elements replace those of
+    /// the same id, as a later element does in one file.
+    pub(crate) fn append(&mut self, mut later: OsmData) {
+        self.nodes.append(&mut later.nodes);
+        self.ways.append(&mut later.ways);
+        self.relations.append(&mut later.relations);
+        self.invalid_nodes.append(&mut later.invalid_nodes);
+    }
+
     pub(crate) fn add_node(&mut self, id: i64, lat: f64, lon: f64, tags: Tags) {
         if lat.is_finite() && lon.is_finite() && lat.abs() <= 90.0 && lon.abs() <= 180.0 {
             self.nodes.insert(

@@ -46,49 +46,134 @@ enum Open {
 
 /// Parses OSM XML held in memory. Errors carry no path; [`read_xml`] adds it.
 ///
-/// OSM files list all nodes before the first way, so a large file is parsed as two halves on
-/// two threads: the node section, and the ways and relations after it. Any error in either
-/// half re-parses the whole file in one pass, so the error message and its byte position are
-/// those of a plain sequential parse.
+/// A large file is parsed as one piece per thread, side by side and without copying: the
+/// pieces are cut just before top-level elements, the first holds the `<osm>` start tag and
+/// the last stops before the `</osm>` that ends the file. The pieces' data is merged in file
+/// order, so a later element wins as it does in one pass. Any error in any piece re-parses the
+/// whole file in one pass, so the error message and its byte position are those of a plain
+/// sequential parse.
 pub fn parse_xml(input: &[u8]) -> Result<OsmData, MapError> {
-    const MIN_SPLIT_BYTES: usize = 256 * 1024;
-    let split = (input.len() >= MIN_SPLIT_BYTES)
-        .then(|| memchr::memmem::find(input, b"<way "))
-        .flatten()
-        .filter(|&at| at > input.len() / 8 && at < input.len() / 8 * 7);
-    let Some(at) = split else {
+    let Some(pieces) = split_into_pieces(input, rayon::current_num_threads()) else {
         return parse_xml_sequential(input);
     };
-    let head = [&input[..at], b"</osm>".as_slice()].concat();
-    let tail = [b"<osm>".as_slice(), &input[at..]].concat();
-    let (nodes, rest) = rayon::join(
-        || parse_xml_sequential(&head),
-        || parse_xml_sequential(&tail),
-    );
-    match (nodes, rest) {
-        (Ok(mut data), Ok(rest)) => {
-            let OsmData {
-                nodes,
-                ways,
-                relations,
-                invalid_nodes,
-            } = rest;
-            data.nodes.extend(nodes);
-            data.ways.extend(ways);
-            data.relations.extend(relations);
-            data.invalid_nodes.extend(invalid_nodes);
-            Ok(data)
-        }
-        _ => parse_xml_sequential(input),
+    let parsed = parse_pieces(input, &pieces);
+    match parsed {
+        Some(data) => Ok(data),
+        None => parse_xml_sequential(input),
     }
 }
 
+/// The smallest piece worth a thread of its own.
+const MIN_PIECE_BYTES: usize = 256 * 1024;
+
+/// The byte ranges of the pieces of `input` (at most `threads`), or None when it is too small
+/// to split or does not end with `</osm>`.
+fn split_into_pieces(input: &[u8], threads: usize) -> Option<Vec<std::ops::Range<usize>>> {
+    let count = threads.min(input.len() / MIN_PIECE_BYTES);
+    if count < 2 {
+        return None;
+    }
+    let end = input.trim_ascii_end().strip_suffix(b"</osm>")?.len();
+    let mut starts = vec![0];
+    for i in 1..count {
+        let target = (end / count * i).max(*starts.last()?);
+        if let Some(at) = next_top_level_element(&input[target..end]) {
+            starts.push(target + at);
+        }
+    }
+    starts.dedup();
+    if starts.len() < 2 {
+        return None;
+    }
+    let ends = starts.iter().skip(1).copied().chain([end]);
+    Some(starts.iter().zip(ends).map(|(&s, e)| s..e).collect())
+}
+
+/// Where the next `<node `, `<way ` or `<relation ` start tag begins in `text`.
+fn next_top_level_element(text: &[u8]) -> Option<usize> {
+    let mut from = 0;
+    while let Some(at) = memchr::memchr(b'<', &text[from..]) {
+        let tag = &text[from + at..];
+        if [b"<node ".as_slice(), b"<way ", b"<relation "]
+            .iter()
+            .any(|t| tag.starts_with(t))
+        {
+            return Some(from + at);
+        }
+        from += at + 1;
+    }
+    None
+}
+
+/// Parses the pieces on the thread pool and merges them in order; None when any piece fails
+/// or the pieces do not fit together.
+fn parse_pieces(input: &[u8], pieces: &[std::ops::Range<usize>]) -> Option<OsmData> {
+    use rayon::prelude::*;
+    let parsed: Vec<Result<Piece, MapError>> = pieces
+        .par_iter()
+        .map(|range| parse_piece(&input[range.clone()]))
+        .collect();
+    let mut merged: Option<OsmData> = None;
+    for (i, piece) in parsed.into_iter().enumerate() {
+        let piece = piece.ok()?;
+        // Each piece must end where the one-pass parse would be between top-level
+        // elements: inside the `<osm>` root after the first piece, at the top otherwise.
+        let fits = if i == 0 {
+            piece.open_elements == 1 && piece.outermost_is_osm
+        } else {
+            piece.open_elements == 0
+        };
+        if !fits || piece.ends_inside_element {
+            return None;
+        }
+        let data = piece.data;
+        match &mut merged {
+            None => merged = Some(data),
+            Some(all) => all.append(data),
+        }
+    }
+    merged
+}
+
 fn parse_xml_sequential(input: &[u8]) -> Result<OsmData, MapError> {
+    let piece = parse_piece(input)?;
+    if !piece.saw_root {
+        return Err(MapError::Parse {
+            path: None,
+            message: "no <osm> root element: not an OSM XML file".into(),
+        });
+    }
+    if piece.ends_inside_element {
+        return Err(MapError::Parse {
+            path: None,
+            message: "the file ends inside an element (truncated?)".into(),
+        });
+    }
+    Ok(piece.data)
+}
+
+/// What one piece of XML (or a whole file) holds.
+struct Piece {
+    data: OsmData,
+    /// An `<osm>` or `<osmChange>` element was opened.
+    saw_root: bool,
+    /// How many elements are open at the end of the text, and whether the outermost of them
+    /// is `<osm>`.
+    open_elements: usize,
+    outermost_is_osm: bool,
+    /// The text ends before a `<node>`, `<way>` or `<relation>` is closed.
+    ends_inside_element: bool,
+}
+
+/// Parses a whole file or one piece of it.
+fn parse_piece(input: &[u8]) -> Result<Piece, MapError> {
     let mut reader = quick_xml::Reader::from_reader(input);
     reader.config_mut().trim_text(true);
     let mut data = OsmData::default();
     let mut open = Open::None;
     let mut saw_root = false;
+    let mut depth: usize = 0;
+    let mut outermost_is_osm = false;
     loop {
         let pos = reader.buffer_position();
         let event = reader.read_event().map_err(|e| MapError::Parse {
@@ -102,6 +187,12 @@ fn parse_xml_sequential(input: &[u8]) -> Result<OsmData, MapError> {
         match event {
             Event::Start(ref e) | Event::Empty(ref e) => {
                 let is_empty = matches!(event, Event::Empty(_));
+                if !is_empty {
+                    if depth == 0 {
+                        outermost_is_osm = e.name().as_ref() == b"osm";
+                    }
+                    depth += 1;
+                }
                 match e.name().as_ref() {
                     b"osm" | b"osmChange" => saw_root = true,
                     b"node" => {
@@ -185,6 +276,8 @@ fn parse_xml_sequential(input: &[u8]) -> Result<OsmData, MapError> {
                 }
             }
             Event::End(ref e) => {
+                // quick-xml has checked that it closes the innermost open element.
+                depth = depth.saturating_sub(1);
                 if matches!(e.name().as_ref(), b"node" | b"way" | b"relation") {
                     close(&mut data, &mut open);
                 }
@@ -193,19 +286,13 @@ fn parse_xml_sequential(input: &[u8]) -> Result<OsmData, MapError> {
             _ => {}
         }
     }
-    if !saw_root {
-        return Err(MapError::Parse {
-            path: None,
-            message: "no <osm> root element: not an OSM XML file".into(),
-        });
-    }
-    if !matches!(open, Open::None) {
-        return Err(MapError::Parse {
-            path: None,
-            message: "the file ends inside an element (truncated?)".into(),
-        });
-    }
-    Ok(data)
+    Ok(Piece {
+        data,
+        saw_root,
+        open_elements: depth,
+        outermost_is_osm,
+        ends_inside_element: !matches!(open, Open::None),
+    })
 }
 
 fn close(data: &mut OsmData, open: &mut Open) {
@@ -310,7 +397,7 @@ mod tests {
     fn split_parse_equals_sequential_parse() {
         // Large enough to be split: many nodes, then ways and a relation.
         let mut xml = String::from("<?xml version=\"1.0\"?>\n<osm version=\"0.6\">\n");
-        for i in 0..8000 {
+        for i in 0..12000 {
             xml += &format!(
                 "  <node id=\"{i}\" lat=\"{}\" lon=\"{}\"><tag k=\"n\" v=\"{i}\"/></node>\n",
                 10.0 + f64::from(i) * 1e-5,
@@ -325,17 +412,28 @@ mod tests {
             );
         }
         xml += "  <relation id=\"1\"><member type=\"way\" ref=\"1\" role=\"from\"/></relation>\n</osm>\n";
-        assert!(xml.len() > 256 * 1024);
+        assert!(xml.len() > 3 * 256 * 1024, "large enough for three pieces");
         let split = parse_xml(xml.as_bytes()).expect("parses");
         let whole = parse_xml_sequential(xml.as_bytes()).expect("parses");
         assert_eq!(split, whole);
+        for threads in [2, 3] {
+            let pieces = split_into_pieces(xml.as_bytes(), threads).expect("splits");
+            assert_eq!(pieces.len(), threads);
+            let pieced = parse_pieces(xml.as_bytes(), &pieces).expect("pieces fit");
+            assert_eq!(pieced, whole);
+        }
         assert_eq!(
             (split.nodes.len(), split.ways.len(), split.relations.len()),
-            (8000, 2000, 1)
+            (12000, 2000, 1)
         );
         // A broken way section gives the sequential parser's error, not a half-read map.
         let broken = xml.replace("<way id=\"1999\">", "<way id=\"1999\"></node>");
         assert!(parse_xml(broken.as_bytes()).is_err());
+        // So does an element left open across pieces, which no single piece can see.
+        let unclosed = xml.replace("<way id=\"1000\">", "<extra><way id=\"1000\">");
+        let pieces = split_into_pieces(unclosed.as_bytes(), 2).expect("splits");
+        assert!(parse_pieces(unclosed.as_bytes(), &pieces).is_none());
+        assert!(parse_xml(unclosed.as_bytes()).is_err());
     }
 
     #[test]

@@ -270,10 +270,8 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
 
     let mut progress = ctx.ui.progress("map import");
     progress.step(&format!("reading {}", input.display()));
-    // Hashing the input for summary.json costs as much as parsing it: do both at once.
-    let (hashed, parsed) = rayon::join(|| sha256_file(input), || maps::osm::read_osm_file(input));
-    let (osm, format) = parsed.map_err(|e| map_error(input, e, FileRole::OsmInput))?;
-    let (bytes, sha256) = hashed?;
+    let (osm, format) =
+        maps::osm::read_osm_file(input).map_err(|e| map_error(input, e, FileRole::OsmInput))?;
     let lanelet2 = osm.is_lanelet2();
     progress.note(&format!(
         "{} nodes, {} ways, {} relations{}",
@@ -287,8 +285,10 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         "building the map (profile {})",
         options.profile.name
     ));
-    let map =
-        maps::import_osm(&osm, options).map_err(|e| map_error(input, e, FileRole::OsmInput))?;
+    // The reader parses on every core but the build runs on one: hash the input for
+    // summary.json on another core meanwhile.
+    let (built, hashed) = rayon::join(|| maps::import_osm(&osm, options), || sha256_file(input));
+    let map = built.map_err(|e| map_error(input, e, FileRole::OsmInput))?;
     // Freeing the parsed OSM data (hundreds of thousands of small allocations) costs more
     // than the rest of the import's bookkeeping; the process ends right after the import.
     std::mem::forget(osm);
@@ -300,6 +300,7 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         )
         .into());
     }
+    let (bytes, sha256) = hashed?;
     let summary = maps::summary::summarize(&map);
     let input_info = InputInfo {
         file: input
@@ -385,21 +386,38 @@ fn write_outputs(
             ))
         })
     };
-    let ser = |e: maps::MapError| map_error(dir, e, FileRole::Output);
-    // The four encodings are independent: make them side by side, then write in a fixed order.
+    let encode_and_write = |name: &str, encoded: Result<Vec<u8>, maps::MapError>| {
+        write(
+            name,
+            &encoded.map_err(|e| map_error(dir, e, FileRole::Output))?,
+        )
+    };
+    // The four files are independent: encode and write them side by side; a failure is
+    // reported in this fixed order.
     let ((json, bin), (geojson, png)) = rayon::join(
-        || (maps::io::to_json_bytes(map), maps::io::to_binary_bytes(map)),
         || {
-            (
-                maps::geojson::to_geojson_string(map),
-                maps::preview::render_preview_png(map, PREVIEW_MAX_PX),
+            rayon::join(
+                || encode_and_write(MAP_JSON, maps::io::to_json_bytes(map)),
+                || encode_and_write(MAP_BIN, maps::io::to_binary_bytes(map)),
+            )
+        },
+        || {
+            rayon::join(
+                || {
+                    let text = maps::geojson::to_geojson_string(map);
+                    encode_and_write(MAP_GEOJSON, text.map(String::into_bytes))
+                },
+                || {
+                    let png = maps::preview::render_preview_png(map, PREVIEW_MAX_PX);
+                    encode_and_write(PREVIEW_PNG, png)
+                },
             )
         },
     );
-    write(MAP_JSON, &json.map_err(ser)?)?;
-    write(MAP_BIN, &bin.map_err(ser)?)?;
-    write(MAP_GEOJSON, geojson.map_err(ser)?.as_bytes())?;
-    write(PREVIEW_PNG, &png.map_err(ser)?)?;
+    json?;
+    bin?;
+    geojson?;
+    png?;
     let file = SummaryFile {
         summary,
         input,
