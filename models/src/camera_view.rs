@@ -49,7 +49,7 @@ const PERSON_HEIGHT_M: f64 = 1.7;
 enum Labeller {
     /// The trained segmenter on the colour image.
     Segmenter {
-        model: PspNet,
+        model: Box<PspNet>,
         config: PspNetConfig,
         device: Device,
     },
@@ -94,7 +94,7 @@ impl CameraSegmentation {
             map,
             config,
             Labeller::Segmenter {
-                model,
+                model: Box::new(model),
                 config: seg_config,
                 device: device.clone(),
             },

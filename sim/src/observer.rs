@@ -127,7 +127,10 @@ impl CameraViewConfig {
                 self.width, self.height
             ));
         }
-        if self.pool == 0 || self.width % self.pool != 0 || self.height % self.pool != 0 {
+        if self.pool == 0
+            || !self.width.is_multiple_of(self.pool)
+            || !self.height.is_multiple_of(self.pool)
+        {
             return bad(format!(
                 "pool {} must be positive and divide the image size {}x{}",
                 self.pool, self.width, self.height

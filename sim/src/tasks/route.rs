@@ -1054,6 +1054,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::unwrap_used)]
     fn the_views_give_the_layers_their_spec_declares() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../data/osm/northwestern_nu.osm.pbf");
