@@ -19,6 +19,7 @@
 //! type whatever the backend, so the networks need no backend type parameter).
 
 pub mod bc;
+pub mod camera_view;
 pub mod dqn;
 pub mod error;
 pub mod offline;

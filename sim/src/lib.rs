@@ -9,6 +9,8 @@
 //!   kinematic bicycle), deterministic under a seed.
 //! - [`render`]: the bird's-eye representation (layers, frame stack).
 //! - [`tasks`]: roundabout insertion as an [`Env`].
+//! - [`observer`]: which layers a task observes ([`observer::View`]) and the hook for layers
+//!   drawn outside `sim` (the camera-segmentation view of `models`).
 //! - [`baselines`] and [`eval`]: rule-based and constant policies, and the parallel
 //!   evaluation harness that learned policies plug into.
 
@@ -17,6 +19,7 @@ pub mod env;
 pub mod error;
 pub mod eval;
 pub mod kinematics;
+pub mod observer;
 pub mod path;
 pub mod render;
 pub mod roundabout;

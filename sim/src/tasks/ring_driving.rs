@@ -25,11 +25,13 @@
 //!   route sooner: the task has no goal other than driving its time without a fault, so
 //!   that is its success. Being far from the roundabout does not end an episode (the issue
 //!   gives it as a per-step penalty); in practice the 4 m rule ends a stray one first.
-//! - Observation: the bird's-eye layers around the ego (navigable area, the route as the
-//!   target lane, every vehicle's footprint, stop / yield lines; ego-centred and aligned
-//!   with its heading, `stack` frames) and two scalars, the speed over `speed_scale_mps` and
-//!   the front wheels' angle over `steer_rad`. Neither the heading nor the distance
-//!   deviation is an input: the agent must read them from the route in the layers.
+//! - Observation (`view`): the bird's-eye layers around the ego (`"bev"`, the default:
+//!   navigable area, the route as the target lane, every vehicle's footprint, stop / yield
+//!   lines; ego-centred and aligned with its heading, `stack` frames), or the front camera's
+//!   segmented view (`"camera-segmentation"`, settings in `camera`, drawn by an observer
+//!   given to [`RingDrivingSetup::with_observer`]); and two scalars, the speed over
+//!   `speed_scale_mps` and the front wheels' angle over `steer_rad`. Neither the heading
+//!   nor the distance deviation is an input: the agent must read them from the layers.
 //! - Metrics: mean angle deviation (°) and mean distance deviation (m) over the episode's
 //!   steps, the episode's length (s), the mean speed (km/h).
 
@@ -45,6 +47,7 @@ use super::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
 use crate::kinematics::Bicycle;
+use crate::observer::{CameraViewConfig, SceneObserver, View};
 use crate::path::wrap_angle;
 use crate::render::{BevConfig, BevRenderer};
 use crate::roundabout::{LayoutConfig, RingRoute, RoundaboutLayout};
@@ -130,7 +133,15 @@ pub struct RingDrivingConfig {
     pub traffic: TrafficConfig,
     pub ego: EgoConfig,
     pub layout: LayoutConfig,
+    /// Which layers the agent sees: `bev` (the `observation` table) or
+    /// `camera-segmentation` (the `camera` table).
+    #[serde(skip_serializing_if = "is_bev")]
+    pub view: View,
+    /// The bird's-eye layers (drawn for the `navigable` test whatever the view).
     pub observation: BevConfig,
+    /// The camera-segmentation view's settings (`segmenter` is required for that view).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraViewConfig>,
     pub reward: RingRewardConfig,
     /// Length of an episode, s.
     pub episode_s: f64,
@@ -173,6 +184,8 @@ impl Default for RingDrivingConfig {
                 path_width_m: 1.5,
                 ..BevConfig::default()
             },
+            view: View::Bev,
+            camera: None,
             reward: RingRewardConfig::default(),
             episode_s: 10.0,
             steer_rad: 0.6,
@@ -186,8 +199,23 @@ impl Default for RingDrivingConfig {
     }
 }
 
+fn is_bev(view: &View) -> bool {
+    *view == View::Bev
+}
+
 fn validate(c: &RingDrivingConfig) -> Result<(), SimError> {
     c.observation.validate()?;
+    match c.view {
+        View::Bev => {}
+        View::Scalars => {
+            return Err(SimError::Config(
+                "view = \"scalars\": roundabout driving has no route inputs besides its layers; \
+                 use \"bev\" or \"camera-segmentation\""
+                    .into(),
+            ));
+        }
+        View::CameraSegmentation => c.camera_view()?.validate()?,
+    }
     let positive = [
         ("traffic.step_s", c.traffic.step_s),
         ("episode_s", c.episode_s),
@@ -230,22 +258,78 @@ pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
     bev.observation_spec(SCALARS)
 }
 
+impl RingDrivingConfig {
+    /// The camera view's settings, required by `view = "camera-segmentation"`.
+    pub fn camera_view(&self) -> Result<&CameraViewConfig, SimError> {
+        self.camera.as_ref().ok_or_else(|| {
+            SimError::Config(
+                "view = \"camera-segmentation\" needs a [agent.roundabout_driving.camera] table \
+                 with segmenter = \"<model folder>\""
+                    .into(),
+            )
+        })
+    }
+
+    /// The shape of the task's observations with this config.
+    pub fn observation_spec(&self) -> ObservationSpec {
+        match (self.view, &self.camera) {
+            (View::CameraSegmentation, Some(camera)) => camera.observation_spec(SCALARS),
+            _ => observation_spec(&self.observation),
+        }
+    }
+}
+
 /// What is prepared once per map and shared by every environment on it (read-only).
 #[derive(Debug)]
 pub struct RingDrivingSetup {
     config: RingDrivingConfig,
     roundabouts: RoundaboutSet,
+    /// Draws the layers of a camera view.
+    observer: Option<Arc<dyn SceneObserver>>,
 }
 
 impl RingDrivingSetup {
     /// Prepares every roundabout of `map` that has a route through its ring. Fails when
     /// there is none, or the configuration is invalid.
+    /// A camera view needs its observer: see [`RingDrivingSetup::with_observer`].
     pub fn new(map: Arc<Map>, config: RingDrivingConfig) -> Result<Arc<Self>, SimError> {
+        Self::with_observer(map, config, None)
+    }
+
+    /// As [`RingDrivingSetup::new`], with the observer that draws the layers of
+    /// `view = "camera-segmentation"` (required by that view, unused by the others; its
+    /// frame shape must be the `camera` table's).
+    pub fn with_observer(
+        map: Arc<Map>,
+        config: RingDrivingConfig,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
         validate(&config)?;
+        let observer = match config.view {
+            View::CameraSegmentation => {
+                let Some(observer) = observer else {
+                    return Err(SimError::Config(
+                        "view = \"camera-segmentation\" needs a camera observer \
+                         (models::camera_view; `pipeline agent` builds it from the camera table)"
+                            .into(),
+                    ));
+                };
+                let wanted = config.camera_view()?.frame_shape();
+                if observer.frame_shape() != wanted {
+                    return Err(SimError::Config(format!(
+                        "the camera observer draws frames of {:?}, the camera table asks for {wanted:?}",
+                        observer.frame_shape()
+                    )));
+                }
+                Some(observer)
+            }
+            View::Bev | View::Scalars => None,
+        };
         let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
         Ok(Arc::new(RingDrivingSetup {
             config,
             roundabouts,
+            observer,
         }))
     }
 
@@ -262,7 +346,7 @@ impl RingDrivingSetup {
     }
 
     pub fn observation_spec(&self) -> ObservationSpec {
-        observation_spec(&self.config.observation)
+        self.config.observation_spec()
     }
 }
 
@@ -329,7 +413,10 @@ pub struct RingDriving {
 impl RingDriving {
     pub fn new(setup: Arc<RingDrivingSetup>) -> Self {
         let config = setup.config.clone();
-        let view = EgoView::new(&config.observation);
+        let view = match (&setup.observer, &config.camera) {
+            (Some(observer), Some(camera)) => EgoView::observed(Arc::clone(observer), camera.stack),
+            _ => EgoView::new(&config.observation),
+        };
         RingDriving {
             setup,
             config,
@@ -348,7 +435,7 @@ impl RingDriving {
         }
     }
 
-    /// Turns drawing the bird's-eye layers on or off (off: observations carry empty
+    /// Turns drawing the layers (bird's-eye or camera) on or off (off: observations carry empty
     /// layers; the episodes themselves do not change).
     pub fn set_rendering(&mut self, on: bool) {
         self.view.set_rendering(on);
@@ -377,7 +464,8 @@ impl RingDriving {
         self.steer
     }
 
-    /// The newest bird's-eye frame (`[layer, row, column]`, see [`BevConfig::layers`]).
+    /// The newest frame of layers (`[layer, row, column]`; for the bird's-eye view see
+    /// [`BevConfig::layers`]).
     pub fn newest_frame(&self) -> &[u8] {
         self.view.newest()
     }
@@ -815,6 +903,100 @@ mod tests {
         let after = env.step(1);
         assert_eq!(after.reward, 0.0);
         assert_eq!(after.outcome, last.outcome);
+    }
+
+    /// Frames that encode the ego's position, in the default camera table's shape.
+    #[derive(Debug)]
+    struct PositionFrames((usize, usize, usize));
+
+    impl SceneObserver for PositionFrames {
+        fn frame_shape(&self) -> (usize, usize, usize) {
+            self.0
+        }
+
+        fn observe(&self, scene: &Scene<'_>, out: &mut Vec<u8>) {
+            let (c, h, w) = self.0;
+            let p = scene
+                .ego_actor()
+                .map_or(0.0, |a| a.position.x + a.position.y);
+            out.clear();
+            out.resize(c * h * w, (p * 10.0).rem_euclid(251.0) as u8);
+        }
+    }
+
+    #[test]
+    fn the_camera_view_needs_its_table_and_observer_and_has_their_shape() {
+        let map = Arc::new(test_maps::montlake());
+        let mut config = RingDrivingConfig {
+            view: View::CameraSegmentation,
+            ..RingDrivingConfig::default()
+        };
+        let no_table = RingDrivingSetup::new(Arc::clone(&map), config.clone()).unwrap_err();
+        assert!(no_table.to_string().contains("camera"), "{no_table}");
+        config.camera = Some(CameraViewConfig {
+            segmenter: "some/model".into(),
+            ..CameraViewConfig::default()
+        });
+        let no_observer = RingDrivingSetup::new(Arc::clone(&map), config.clone()).unwrap_err();
+        assert!(
+            no_observer.to_string().contains("observer"),
+            "{no_observer}"
+        );
+        let shape = config.camera.as_ref().unwrap().frame_shape();
+        assert_eq!(shape, (3, 32, 64));
+        let wrong: Arc<dyn SceneObserver> = Arc::new(PositionFrames((1, 2, 3)));
+        assert!(
+            RingDrivingSetup::with_observer(Arc::clone(&map), config.clone(), Some(wrong)).is_err()
+        );
+
+        let observer: Arc<dyn SceneObserver> = Arc::new(PositionFrames(shape));
+        let setup = RingDrivingSetup::with_observer(map, config, Some(observer)).unwrap();
+        let spec = setup.observation_spec();
+        assert_eq!(
+            spec,
+            ObservationSpec {
+                channels: 6,
+                height: 32,
+                width: 64,
+                scalars: SCALARS
+            }
+        );
+        let mut env = RingDriving::new(Arc::clone(&setup));
+        assert_eq!(env.observation_spec(), spec);
+        let first = env.reset(5);
+        assert_eq!(first.layers.len(), spec.layer_len());
+        // Both stacked frames of a reset are the first one.
+        let half = spec.layer_len() / 2;
+        assert_eq!(first.layers[..half], first.layers[half..]);
+        let mut step = env.step(0);
+        for _ in 0..3 {
+            step = env.step(0);
+        }
+        assert_eq!(step.observation.layers.len(), spec.layer_len());
+        assert_ne!(
+            step.observation.layers, first.layers,
+            "the frames follow the ego"
+        );
+        // Rendering off: no layers, the same episode.
+        env.set_rendering(false);
+        assert!(env.reset(5).layers.is_empty());
+    }
+
+    #[test]
+    fn the_bird_s_eye_view_stays_the_default_and_out_of_saved_configs() {
+        let config = RingDrivingConfig::default();
+        assert_eq!(config.view, View::Bev);
+        let json = serde_json::to_value(&config).unwrap();
+        assert!(
+            json.get("view").is_none() && json.get("camera").is_none(),
+            "{json}"
+        );
+        let scalars = RingDrivingConfig {
+            view: View::Scalars,
+            ..RingDrivingConfig::default()
+        };
+        let map = Arc::new(test_maps::montlake());
+        assert!(RingDrivingSetup::new(map, scalars).is_err());
     }
 
     #[test]

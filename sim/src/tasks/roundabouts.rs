@@ -8,6 +8,7 @@ use maps::Map;
 use rand::Rng;
 
 use crate::error::SimError;
+use crate::observer::SceneObserver;
 use crate::render::{BevConfig, BevRenderer, FrameStack};
 use crate::roundabout::{LayoutConfig, RoundaboutLayout};
 use crate::scene::Scene;
@@ -111,13 +112,15 @@ pub fn ego_scene<'a>(
     })
 }
 
-/// The ego's bird's-eye frames of one episode. With rendering off nothing is drawn and
-/// observations carry empty layers (for policies that do not read them).
+/// The ego's stacked frames of one episode: bird's-eye frames, or frames drawn by a
+/// [`SceneObserver`] (the camera-segmentation view). With rendering off nothing is drawn
+/// and observations carry empty layers (for policies that do not read them).
 #[derive(Debug, Clone)]
 pub struct EgoView {
     frame: Vec<u8>,
     stack: FrameStack,
     rendering: bool,
+    observer: Option<Arc<dyn SceneObserver>>,
 }
 
 impl EgoView {
@@ -126,6 +129,18 @@ impl EgoView {
             frame: Vec::new(),
             stack: FrameStack::new(config.frame_len(), config.stack),
             rendering: true,
+            observer: None,
+        }
+    }
+
+    /// Frames drawn by `observer` instead of a bird's-eye renderer, `stack` of them.
+    pub fn observed(observer: Arc<dyn SceneObserver>, stack: usize) -> Self {
+        let (c, h, w) = observer.frame_shape();
+        EgoView {
+            frame: Vec::new(),
+            stack: FrameStack::new(c * h * w, stack),
+            rendering: true,
+            observer: Some(observer),
         }
     }
 
@@ -136,16 +151,39 @@ impl EgoView {
     /// Draws `scene` (nothing without one: the previous frame is kept) and starts a new
     /// stack with it (`first`, at a reset) or pushes it.
     pub fn draw(&mut self, renderer: &BevRenderer, scene: Option<Scene<'_>>, first: bool) {
+        self.draw_with(Some(renderer), scene, first);
+    }
+
+    /// As [`EgoView::draw`]; `renderer` is only used without an observer (and nothing is
+    /// drawn without either).
+    pub fn draw_with(
+        &mut self,
+        renderer: Option<&BevRenderer>,
+        scene: Option<Scene<'_>>,
+        first: bool,
+    ) {
         if !self.rendering {
             return;
         }
+        let frame_len = match (&self.observer, renderer) {
+            (Some(o), _) => {
+                let (c, h, w) = o.frame_shape();
+                c * h * w
+            }
+            (None, Some(r)) => r.config().frame_len(),
+            (None, None) => return,
+        };
         if let Some(scene) = scene {
-            renderer.render(&scene, &mut self.frame);
+            match (&self.observer, renderer) {
+                (Some(o), _) => o.observe(&scene, &mut self.frame),
+                (None, Some(r)) => r.render(&scene, &mut self.frame),
+                (None, None) => {}
+            }
         }
-        if self.frame.len() != renderer.config().frame_len() {
+        if self.frame.len() != frame_len {
             // Never drawn (no ego yet): an empty frame of the right size.
             self.frame.clear();
-            self.frame.resize(renderer.config().frame_len(), 0);
+            self.frame.resize(frame_len, 0);
         }
         if first {
             self.stack.reset(&self.frame);

@@ -21,11 +21,14 @@
 //! - Termination: Reached (the route's end), Crashed, OffRoad (the ego's centre more than
 //!   `off_road_m` beyond its lane's edge), TimeOver (`time_limit_factor` × the route's
 //!   time at the maximum speed, plus 10 s).
-//! - Observation (no layers): the route ahead in the ego's frame (lateral offsets of the
-//!   route's centre line at `lookahead_m` metres along it), the lane's half width, speed and
-//!   steering angle, and the nearest other vehicle within 20 m (ego-frame position). A
-//!   navigation system gives a driver the route the same way; the bird's-eye layers are an
-//!   option of the insertion and roundabout-driving tasks, not of this one yet.
+//! - Observation: the route ahead in the ego's frame (lateral offsets of the route's centre
+//!   line at `lookahead_m` metres along it), the lane's half width, speed and steering
+//!   angle, and the nearest other vehicle within 20 m (ego-frame position): a navigation
+//!   system gives a driver the route the same way. Layers by `view`: none (`"scalars"`, the
+//!   default), the bird's-eye layers of the scene around the ego (`"bev"`, the `bev` table;
+//!   the route is the `path` layer), or the front camera's segmented view
+//!   (`"camera-segmentation"`, the `camera` table, drawn by an observer given to
+//!   [`RouteSetup::with_observer`]).
 //! - Metrics: route completion (share of the route driven), lane-centre RMS error (m),
 //!   time in lane (share of decisions at or above the in-lane threshold).
 
@@ -40,10 +43,13 @@ use serde::{Deserialize, Serialize};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
 use crate::kinematics::{Bicycle, advance_speed, direction};
+use crate::observer::{CameraViewConfig, SceneObserver, View};
 use crate::path::{Path, PieceKey, SpeedProfile, wrap_angle};
+use crate::render::{BevConfig, BevRenderer};
 use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
 use crate::seed::derive_seed;
 use crate::tasks::ring_driving::SteerAction;
+use crate::tasks::roundabouts::EgoView;
 use crate::tasks::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
 use crate::world::{Driver, DriverConfig, EgoConfig};
 
@@ -100,6 +106,20 @@ pub struct RouteConfig {
     pub off_road_m: f64,
     pub time_limit_factor: f64,
     pub reward: RouteReward,
+    /// Which layers the agent sees besides its scalars: `scalars` (none), `bev` (the `bev`
+    /// table, or [`RouteConfig::default_bev`]) or `camera-segmentation` (the `camera` table).
+    #[serde(skip_serializing_if = "is_scalars")]
+    pub view: View,
+    /// The bird's-eye layers of `view = "bev"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bev: Option<BevConfig>,
+    /// The camera-segmentation view's settings (`segmenter` is required for that view).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraViewConfig>,
+}
+
+fn is_scalars(view: &View) -> bool {
+    *view == View::Scalars
 }
 
 impl Default for RouteConfig {
@@ -120,6 +140,9 @@ impl Default for RouteConfig {
             off_road_m: 1.5,
             time_limit_factor: 2.0,
             reward: RouteReward::default(),
+            view: View::Scalars,
+            bev: None,
+            camera: None,
         }
     }
 }
@@ -140,12 +163,66 @@ impl RouteConfig {
             Some("held_out_fraction must be in [0, 1)")
         } else if self.lookahead_m.is_empty() {
             Some("lookahead_m needs at least one distance")
+        } else if self.view == View::CameraSegmentation && self.camera.is_none() {
+            Some(
+                "view = \"camera-segmentation\" needs a [agent.route.camera] table with \
+                 segmenter = \"<model folder>\"",
+            )
         } else {
             None
         };
-        match problem {
-            Some(p) => Err(SimError::Config(format!("[agent.route]: {p}"))),
-            None => Ok(()),
+        if let Some(p) = problem {
+            return Err(SimError::Config(format!("[agent.route]: {p}")));
+        }
+        match self.view {
+            View::Scalars => Ok(()),
+            View::Bev => self.bev_config().validate(),
+            View::CameraSegmentation => self.camera.as_ref().map_or(Ok(()), |c| c.validate()),
+        }
+    }
+
+    /// The bird's-eye view of a campus drive when no `bev` table is given: 42 × 42 pixels
+    /// over 24 m (0.57 m a pixel), navigable area, route (1.5 m wide), vehicles; 2 frames.
+    pub fn default_bev() -> BevConfig {
+        BevConfig {
+            width: 42,
+            height: 42,
+            forward_m: 24.0,
+            lateral_m: 24.0,
+            layers: vec![
+                crate::render::Layer::Navigable,
+                crate::render::Layer::Path,
+                crate::render::Layer::Obstacles,
+            ],
+            stack: 2,
+            map_resolution_m: 0.25,
+            path_width_m: 1.5,
+            ..BevConfig::default()
+        }
+    }
+
+    /// The bird's-eye view used by `view = "bev"`.
+    pub fn bev_config(&self) -> BevConfig {
+        self.bev.clone().unwrap_or_else(Self::default_bev)
+    }
+
+    /// Scalar inputs: the route offsets, lane half width, speed, steering, nearest vehicle.
+    pub fn scalars(&self) -> usize {
+        self.lookahead_m.len() + 5
+    }
+
+    /// The shape of the task's observations with this config.
+    pub fn observation_spec(&self) -> ObservationSpec {
+        let scalars = self.scalars();
+        match (self.view, &self.camera) {
+            (View::Bev, _) => self.bev_config().observation_spec(scalars),
+            (View::CameraSegmentation, Some(camera)) => camera.observation_spec(scalars),
+            _ => ObservationSpec {
+                channels: 0,
+                height: 0,
+                width: 0,
+                scalars,
+            },
         }
     }
 
@@ -188,13 +265,59 @@ pub struct RouteSetup {
     routes: Vec<PlannedRoute>,
     /// The car-following model everyone drives by (a middling driver).
     driver: Driver,
+    /// The bird's-eye renderer of the whole map (`view = "bev"`).
+    renderer: Option<BevRenderer>,
+    /// Draws the layers of a camera view.
+    observer: Option<Arc<dyn SceneObserver>>,
 }
 
 impl RouteSetup {
     /// Plans the route pool on `map`. Fails when the map has too few routes of the length
     /// asked for, or the configuration is invalid.
     pub fn new(map: Arc<Map>, config: RouteConfig) -> Result<Arc<Self>, SimError> {
+        Self::with_observer(map, config, None)
+    }
+
+    /// As [`RouteSetup::new`], with the observer that draws the layers of
+    /// `view = "camera-segmentation"` (required by that view, unused by the others; its
+    /// frame shape must be the `camera` table's).
+    pub fn with_observer(
+        map: Arc<Map>,
+        config: RouteConfig,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
         config.validate()?;
+        let observer = match (config.view, &config.camera) {
+            (View::CameraSegmentation, Some(camera)) => {
+                let Some(observer) = observer else {
+                    return Err(SimError::Config(
+                        "[agent.route]: view = \"camera-segmentation\" needs a camera observer \
+                         (models::camera_view; `pipeline agent` builds it from the camera table)"
+                            .into(),
+                    ));
+                };
+                if observer.frame_shape() != camera.frame_shape() {
+                    return Err(SimError::Config(format!(
+                        "[agent.route]: the camera observer draws frames of {:?}, the camera table \
+                         asks for {:?}",
+                        observer.frame_shape(),
+                        camera.frame_shape()
+                    )));
+                }
+                Some(observer)
+            }
+            _ => None,
+        };
+        let renderer = if config.view == View::Bev {
+            let bev = config.bev_config();
+            let mut region = map.bounds();
+            let margin = bev.view_radius_m() + 2.0;
+            region.extend(Point::new(region.min.x - margin, region.min.y - margin));
+            region.extend(Point::new(region.max.x + margin, region.max.y + margin));
+            Some(BevRenderer::new(&map, region, bev)?)
+        } else {
+            None
+        };
         let router = Router::new(&map);
         let mut lanes: Vec<LaneId> = map.lanes.keys().copied().collect();
         lanes.sort();
@@ -257,6 +380,8 @@ impl RouteSetup {
             config,
             routes,
             driver: Driver::new(&DriverConfig::default(), 0.5),
+            renderer,
+            observer,
         }))
     }
 
@@ -275,12 +400,7 @@ impl RouteSetup {
     }
 
     pub fn observation_spec(&self) -> ObservationSpec {
-        ObservationSpec {
-            channels: 0,
-            height: 0,
-            width: 0,
-            scalars: self.config.lookahead_m.len() + 5,
-        }
+        self.config.observation_spec()
     }
 }
 
@@ -384,11 +504,20 @@ pub struct RouteFollowing {
     speed_sum: f64,
     outcome: Option<Outcome>,
     trajectory: Vec<Point>,
+    /// The ego's stacked layers (None for `view = "scalars"`).
+    view: Option<EgoView>,
 }
 
 impl RouteFollowing {
     pub fn new(setup: Arc<RouteSetup>) -> Self {
         let wheelbase = setup.config.ego.wheelbase_m;
+        let view = match (&setup.observer, &setup.config.camera, &setup.renderer) {
+            (Some(observer), Some(camera), _) => {
+                Some(EgoView::observed(Arc::clone(observer), camera.stack))
+            }
+            (None, _, Some(renderer)) => Some(EgoView::new(renderer.config())),
+            _ => None,
+        };
         RouteFollowing {
             setup,
             split: RouteSplit::Training,
@@ -407,7 +536,26 @@ impl RouteFollowing {
             speed_sum: 0.0,
             outcome: None,
             trajectory: Vec::new(),
+            view,
         }
+    }
+
+    /// Turns drawing the layers on or off (off: observations carry empty layers; the
+    /// episodes themselves do not change). Nothing to draw with `view = "scalars"`.
+    pub fn set_rendering(&mut self, on: bool) {
+        if let Some(view) = &mut self.view {
+            view.set_rendering(on);
+        }
+    }
+
+    /// Draws the current scene into the layers: the first frame of an episode, or the next.
+    fn draw(&mut self, first: bool) {
+        let Some(mut view) = self.view.take() else {
+            return;
+        };
+        let setup = Arc::clone(&self.setup);
+        view.draw_with(setup.renderer.as_ref(), self.scene(), first);
+        self.view = Some(view);
     }
 
     /// Which routes the next episodes draw from.
@@ -545,7 +693,7 @@ impl RouteFollowing {
         scalars.push(x as f32);
         scalars.push(y as f32);
         Observation {
-            layers: Vec::new(),
+            layers: self.view.as_ref().map(EgoView::layers).unwrap_or_default(),
             scalars,
         }
     }
@@ -719,6 +867,7 @@ impl Env for RouteFollowing {
         self.outcome = None;
         self.trajectory.clear();
         self.trajectory.push(self.bike.centre());
+        self.draw(true);
         self.observation()
     }
 
@@ -771,6 +920,7 @@ impl Env for RouteFollowing {
         }
         self.outcome = outcome;
         self.episode_return += reward;
+        self.draw(false);
         Step {
             observation: self.observation(),
             reward: reward as f32,
@@ -886,6 +1036,105 @@ mod tests {
         let mut env = RouteFollowing::new(Arc::clone(setup));
         env.set_split(split);
         env
+    }
+
+    #[derive(Debug)]
+    struct Grey((usize, usize, usize));
+
+    impl SceneObserver for Grey {
+        fn frame_shape(&self) -> (usize, usize, usize) {
+            self.0
+        }
+
+        fn observe(&self, scene: &Scene<'_>, out: &mut Vec<u8>) {
+            let (c, h, w) = self.0;
+            out.clear();
+            out.resize(c * h * w, 1 + (scene.time_s * 10.0) as u8);
+        }
+    }
+
+    #[test]
+    #[allow(clippy::unwrap_used)]
+    fn the_views_give_the_layers_their_spec_declares() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../data/osm/northwestern_nu.osm.pbf");
+        let map = Arc::new(
+            maps::build::import_file(&path, &maps::ImportOptions::default())
+                .expect("the bundled campus imports"),
+        );
+        let base = RouteConfig {
+            pool_size: 12,
+            ..RouteConfig::default()
+        };
+        // Scalars (the default): no layers, 13 scalars, as before the views existed.
+        let scalars = RouteSetup::new(Arc::clone(&map), base.clone()).unwrap();
+        assert_eq!(
+            scalars.observation_spec(),
+            ObservationSpec {
+                channels: 0,
+                height: 0,
+                width: 0,
+                scalars: 13
+            }
+        );
+        let o = RouteFollowing::new(Arc::clone(&scalars)).reset(1);
+        assert!(o.layers.is_empty());
+        assert!(serde_json::to_value(&base).unwrap().get("view").is_none());
+
+        // Bird's-eye: 3 layers × 2 frames of 42 × 42; the route is drawn ahead of the ego.
+        let bev = RouteSetup::new(
+            Arc::clone(&map),
+            RouteConfig {
+                view: View::Bev,
+                ..base.clone()
+            },
+        )
+        .unwrap();
+        let spec = bev.observation_spec();
+        assert_eq!((spec.channels, spec.height, spec.width), (6, 42, 42));
+        let mut env = RouteFollowing::new(Arc::clone(&bev));
+        let first = env.reset(1);
+        assert_eq!(first.layers.len(), spec.layer_len());
+        assert_eq!(
+            first.scalars, o.scalars,
+            "the same scalars whatever the view"
+        );
+        let frame = 42 * 42;
+        let path_layer = &first.layers[4 * frame..5 * frame];
+        assert!(
+            path_layer[..frame / 2].iter().any(|&v| v > 0),
+            "route ahead"
+        );
+        let step = env.step(0);
+        assert_eq!(step.observation.layers.len(), spec.layer_len());
+
+        // Camera: needs its table and an observer of its shape.
+        let camera = RouteConfig {
+            view: View::CameraSegmentation,
+            ..base.clone()
+        };
+        assert!(RouteSetup::new(Arc::clone(&map), camera.clone()).is_err());
+        let camera = RouteConfig {
+            camera: Some(CameraViewConfig {
+                segmenter: "model".into(),
+                ..CameraViewConfig::default()
+            }),
+            ..camera
+        };
+        assert!(RouteSetup::new(Arc::clone(&map), camera.clone()).is_err());
+        let shape = camera.camera.as_ref().unwrap().frame_shape();
+        let observer: Arc<dyn SceneObserver> = Arc::new(Grey(shape));
+        let setup = RouteSetup::with_observer(map, camera, Some(observer)).unwrap();
+        let spec = setup.observation_spec();
+        assert_eq!((spec.channels, spec.scalars), (2 * shape.0, 13));
+        let mut env = RouteFollowing::new(setup);
+        let first = env.reset(1);
+        assert_eq!(first.layers.len(), spec.layer_len());
+        assert!(first.layers.iter().all(|&v| v == 1));
+        let step = env.step(0);
+        assert_eq!(step.observation.layers.len(), spec.layer_len());
+        env.set_rendering(false);
+        assert!(env.reset(1).layers.is_empty());
     }
 
     #[test]

@@ -18,6 +18,7 @@ use maps::Map;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use sim::Env;
+use sim::observer::{CameraViewConfig, SceneObserver, View};
 use sim::tasks::obstacle::{ObstacleAvoidance, ObstacleConfig, ObstacleSetup, Scenario};
 use sim::tasks::route::{RouteConfig, RouteFollowing, RouteSetup, RouteSplit};
 use sim::tasks::{
@@ -100,6 +101,47 @@ pub fn required_map(map: Option<&Path>, task: &str) -> Result<Map> {
     load_or_import_map(path)
 }
 
+/// The observer of `view = "camera-segmentation"` on `map` (None for the other views): the
+/// camera renderer and the segmenter of the `camera` table. A missing or invalid segmenter
+/// folder is one error naming the file.
+pub fn camera_observer(
+    map: &Map,
+    view: View,
+    camera: Option<&CameraViewConfig>,
+) -> Result<Option<Arc<dyn SceneObserver>>> {
+    let (View::CameraSegmentation, Some(camera)) = (view, camera) else {
+        return Ok(None);
+    };
+    let observer = models::camera_view::load(map, camera).map_err(|e| {
+        let message = match e.path() {
+            Some(_) => format!("the camera view's segmenter: {e}"),
+            None => format!(
+                "the camera view's segmenter {}: {e}",
+                camera.segmenter.display()
+            ),
+        };
+        CliError::new(
+            message,
+            "set segmenter = \"<folder>\" of the task's camera table to a model folder written by \
+             `pipeline segmenter train` (model.json + model.bpk)",
+        )
+    })?;
+    let observer: Arc<dyn SceneObserver> = Arc::new(observer);
+    Ok(Some(observer))
+}
+
+/// The camera table with its segmenter folder made absolute (when it exists), so the
+/// agent's task.json still finds it from another working directory.
+fn absolute_camera(camera: Option<&CameraViewConfig>) -> Option<CameraViewConfig> {
+    camera.map(|c| {
+        let mut c = c.clone();
+        if let Ok(path) = std::fs::canonicalize(&c.segmenter) {
+            c.segmenter = path;
+        }
+        c
+    })
+}
+
 /// Roundabout insertion (the Parma study).
 #[derive(Debug)]
 pub struct Insertion;
@@ -154,12 +196,15 @@ impl TaskKind for RoundaboutDriving {
     type Setup = RingDrivingSetup;
 
     fn config(agent: &AgentConfig) -> RingDrivingConfig {
-        agent.roundabout_driving.clone()
+        let mut config = agent.roundabout_driving.clone();
+        config.camera = absolute_camera(config.camera.as_ref());
+        config
     }
 
     fn setup(map: Option<&Path>, config: &RingDrivingConfig) -> Result<Arc<RingDrivingSetup>> {
-        let loaded = required_map(map, "roundabout-driving")?;
-        RingDrivingSetup::new(Arc::new(loaded), config.clone()).map_err(|e| {
+        let loaded = Arc::new(required_map(map, "roundabout-driving")?);
+        let observer = camera_observer(&loaded, config.view, config.camera.as_ref())?;
+        RingDrivingSetup::with_observer(loaded, config.clone(), observer).map_err(|e| {
             CliError::new(
                 format!("cannot set up roundabout driving: {e}"),
                 "give a map with a roundabout (e.g. data/osm/montlake_roundabout.osm.pbf) and \
@@ -224,13 +269,16 @@ impl TaskKind for Route {
     type Setup = RouteSetup;
 
     fn config(agent: &AgentConfig) -> RouteConfig {
-        agent.route.clone()
+        let mut config = agent.route.clone();
+        config.camera = absolute_camera(config.camera.as_ref());
+        config
     }
 
     fn setup(map: Option<&Path>, config: &RouteConfig) -> Result<Arc<RouteSetup>> {
-        let loaded = required_map(map, "route-following")?;
+        let loaded = Arc::new(required_map(map, "route-following")?);
         let path = map.unwrap_or(Path::new(""));
-        RouteSetup::new(Arc::new(loaded), config.clone()).map_err(|e| {
+        let observer = camera_observer(&loaded, config.view, config.camera.as_ref())?;
+        RouteSetup::with_observer(loaded, config.clone(), observer).map_err(|e| {
             CliError::file(
                 path,
                 format!("cannot set up route following: {e}"),
