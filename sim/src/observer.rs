@@ -7,6 +7,7 @@
 //! an observer to the task's setup. So no crate depends on one below it.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
@@ -168,4 +169,38 @@ pub trait SceneObserver: Send + Sync + std::fmt::Debug {
 
     /// Writes one frame (`channels × height × width` bytes, channel-major) into `out`.
     fn observe(&self, scene: &Scene<'_>, out: &mut Vec<u8>);
+}
+
+/// The observer a task with `view` keeps: for the camera view, `observer`, which must be
+/// there and draw the frames `camera` asks for (`camera` is the task's camera table, required
+/// by that view); nothing for the other views. `table` names the config table in errors.
+pub fn checked_observer(
+    table: &str,
+    view: View,
+    camera: Option<&CameraViewConfig>,
+    observer: Option<Arc<dyn SceneObserver>>,
+) -> Result<Option<Arc<dyn SceneObserver>>, SimError> {
+    if view != View::CameraSegmentation {
+        return Ok(None);
+    }
+    let Some(camera) = camera else {
+        return Err(SimError::Config(format!(
+            "[{table}]: view = \"camera-segmentation\" needs a [{table}.camera] table with \
+             segmenter = \"<model folder>\""
+        )));
+    };
+    let Some(observer) = observer else {
+        return Err(SimError::Config(format!(
+            "[{table}]: view = \"camera-segmentation\" needs a camera observer \
+             (models::camera_view; `pipeline agent` builds it from the camera table)"
+        )));
+    };
+    let wanted = camera.frame_shape();
+    if observer.frame_shape() != wanted {
+        return Err(SimError::Config(format!(
+            "[{table}]: the camera observer draws frames of {:?}, the camera table asks for {wanted:?}",
+            observer.frame_shape()
+        )));
+    }
+    Ok(Some(observer))
 }

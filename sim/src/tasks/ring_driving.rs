@@ -47,7 +47,7 @@ use super::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
 use crate::kinematics::Bicycle;
-use crate::observer::{CameraViewConfig, SceneObserver, View};
+use crate::observer::{CameraViewConfig, SceneObserver, View, checked_observer};
 use crate::path::wrap_angle;
 use crate::render::{BevConfig, BevRenderer};
 use crate::roundabout::{LayoutConfig, RingRoute, RoundaboutLayout};
@@ -305,26 +305,11 @@ impl RingDrivingSetup {
         observer: Option<Arc<dyn SceneObserver>>,
     ) -> Result<Arc<Self>, SimError> {
         validate(&config)?;
-        let observer = match config.view {
-            View::CameraSegmentation => {
-                let Some(observer) = observer else {
-                    return Err(SimError::Config(
-                        "view = \"camera-segmentation\" needs a camera observer \
-                         (models::camera_view; `pipeline agent` builds it from the camera table)"
-                            .into(),
-                    ));
-                };
-                let wanted = config.camera_view()?.frame_shape();
-                if observer.frame_shape() != wanted {
-                    return Err(SimError::Config(format!(
-                        "the camera observer draws frames of {:?}, the camera table asks for {wanted:?}",
-                        observer.frame_shape()
-                    )));
-                }
-                Some(observer)
-            }
+        let camera = match config.view {
+            View::CameraSegmentation => Some(config.camera_view()?),
             View::Bev | View::Scalars => None,
         };
+        let observer = checked_observer("agent.roundabout_driving", config.view, camera, observer)?;
         let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
         Ok(Arc::new(RingDrivingSetup {
             config,

@@ -43,7 +43,7 @@ use serde::{Deserialize, Serialize};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
 use crate::kinematics::{Bicycle, advance_speed, direction};
-use crate::observer::{CameraViewConfig, SceneObserver, View};
+use crate::observer::{CameraViewConfig, SceneObserver, View, checked_observer};
 use crate::path::{Path, PieceKey, SpeedProfile, wrap_angle};
 use crate::render::{BevConfig, BevRenderer};
 use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
@@ -287,27 +287,8 @@ impl RouteSetup {
         observer: Option<Arc<dyn SceneObserver>>,
     ) -> Result<Arc<Self>, SimError> {
         config.validate()?;
-        let observer = match (config.view, &config.camera) {
-            (View::CameraSegmentation, Some(camera)) => {
-                let Some(observer) = observer else {
-                    return Err(SimError::Config(
-                        "[agent.route]: view = \"camera-segmentation\" needs a camera observer \
-                         (models::camera_view; `pipeline agent` builds it from the camera table)"
-                            .into(),
-                    ));
-                };
-                if observer.frame_shape() != camera.frame_shape() {
-                    return Err(SimError::Config(format!(
-                        "[agent.route]: the camera observer draws frames of {:?}, the camera table \
-                         asks for {:?}",
-                        observer.frame_shape(),
-                        camera.frame_shape()
-                    )));
-                }
-                Some(observer)
-            }
-            _ => None,
-        };
+        let observer =
+            checked_observer("agent.route", config.view, config.camera.as_ref(), observer)?;
         let renderer = if config.view == View::Bev {
             let bev = config.bev_config();
             let mut region = map.bounds();
