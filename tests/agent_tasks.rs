@@ -118,3 +118,100 @@ fn a_map_task_without_a_map_is_one_clear_error() {
     );
     assert!(!dir.path().join("agent").exists());
 }
+
+/// Trains an obstacle-avoidance agent with `config` (a TOML text) into `dir/<name>`.
+fn train_obstacle(dir: &Path, name: &str, config: &str) -> (PathBuf, std::process::Output) {
+    let file = dir.join(format!("{name}.toml"));
+    std::fs::write(&file, config).unwrap();
+    let agent = dir.join(name);
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "--config".as_ref(),
+        file.as_os_str(),
+        "agent".as_ref(),
+        "train".as_ref(),
+        "--task".as_ref(),
+        "obstacle-avoidance".as_ref(),
+        "--out".as_ref(),
+        agent.as_os_str(),
+    ]);
+    (agent, out)
+}
+
+const SMALL_OBSTACLE_RUN: &str = "[agent.dqn]\ntotal_steps = 3000\ncheckpoint_every = 1000\n\
+    warmup_steps = 200\nenvs = 2\nbatch_size = 8\nreplay_capacity = 3000\n\
+    [agent.dqn.network]\nconvolutions = []\nhidden = [16]\n";
+
+#[test]
+fn validation_chooses_the_best_checkpoint_without_changing_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let (validated, out) = train_obstacle(
+        dir.path(),
+        "validated",
+        &format!("{SMALL_OBSTACLE_RUN}[agent.validation]\nepisodes = 6\n"),
+    );
+    assert_success(&out, "agent train with [agent.validation]");
+    let (plain, out) = train_obstacle(dir.path(), "plain", SMALL_OBSTACLE_RUN);
+    assert_success(&out, "agent train without validation");
+    assert!(!dir.path().join("validated.partial").exists());
+
+    // Every checkpoint and the final network validated, on both scenarios.
+    let history = read_json(&validated.join("validation.json"));
+    let points = history["points"].as_array().unwrap();
+    let steps: Vec<u64> = points
+        .iter()
+        .map(|p| p["steps"].as_u64().unwrap())
+        .collect();
+    assert_eq!(steps, [1000, 2000, 3000]);
+    for point in points {
+        let reached = point["reached"].as_array().unwrap();
+        assert_eq!(reached[0][0], "static obstacle");
+        assert_eq!(reached[1][0], "crossing obstacle");
+        let mean = (reached[0][1].as_f64().unwrap() + reached[1][1].as_f64().unwrap()) / 2.0;
+        assert!((point["score"].as_f64().unwrap() - mean).abs() < 1e-12);
+    }
+    // The chosen one: the first with the highest score.
+    let scores: Vec<f64> = points
+        .iter()
+        .map(|p| p["score"].as_f64().unwrap())
+        .collect();
+    let best = scores
+        .iter()
+        .enumerate()
+        .fold(0, |best, (i, &s)| if s > scores[best] { i } else { best });
+    assert_eq!(history["best_steps"].as_u64(), Some(steps[best]));
+    let summary = read_json(&validated.join("summary.json"));
+    assert_eq!(summary["chosen_steps"].as_u64(), Some(steps[best]));
+    let agent = read_json(&validated.join("agent.json"));
+    assert_eq!(agent["steps"].as_u64(), Some(steps[best]));
+    assert_eq!(
+        read_json(&validated.join("task.json"))["validation"]["episodes"],
+        6
+    );
+
+    // Validation does not change the run: the same transitions, updates and episodes.
+    let plain_summary = read_json(&plain.join("summary.json"));
+    for key in [
+        "steps", "updates", "episodes", "reached", "crashed", "off_road",
+    ] {
+        assert_eq!(summary[key], plain_summary[key], "{key}");
+    }
+    assert!(plain_summary.get("chosen_steps").is_none());
+    assert!(!plain.join("validation.json").exists());
+    if steps[best] == 3000 {
+        assert_eq!(
+            std::fs::read(validated.join("online.bpk")).unwrap(),
+            std::fs::read(plain.join("online.bpk")).unwrap()
+        );
+    }
+}
+
+#[test]
+fn validation_without_checkpoints_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = SMALL_OBSTACLE_RUN.replace("checkpoint_every = 1000", "checkpoint_every = 0")
+        + "[agent.validation]\nepisodes = 6\n";
+    let (agent, out) = train_obstacle(dir.path(), "agent", &config);
+    common::assert_refused(&out, "checkpoint_every of [agent.dqn] is 0", &agent);
+}

@@ -16,6 +16,7 @@ mod eval;
 mod offline;
 pub mod tasks;
 pub(crate) mod train;
+pub mod validation;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -209,6 +210,8 @@ pub struct AgentConfig {
     pub obstacle: sim::tasks::obstacle::ObstacleConfig,
     /// `agent train --offline` (the network and optimiser settings come from `[agent.dqn]`).
     pub offline: models::offline::OfflineConfig,
+    /// `[agent.validation]`: choosing the agent among the run's checkpoints.
+    pub validation: validation::ValidationConfig,
 }
 
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same
@@ -221,6 +224,9 @@ pub struct TaskRecord {
     pub traffic: TrafficLevel,
     /// The task's `[agent.<table>]` settings (see [`tasks::TaskKind::Config`]).
     pub config: serde_json::Value,
+    /// How the agent was chosen among the run's checkpoints (absent: the final network).
+    #[serde(default, skip_serializing_if = "validation::ValidationConfig::is_off")]
+    pub validation: validation::ValidationConfig,
 }
 
 impl TaskRecord {

@@ -238,6 +238,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         map: Some(map_path.clone()),
         traffic: TrafficLevel::Medium,
         config: serde_json::to_value(&task_config)?,
+        validation: Default::default(),
     };
     write_json(&dir.path().join(TASK_FILE), &task)?;
     write_json(

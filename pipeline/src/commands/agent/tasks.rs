@@ -28,7 +28,9 @@ use sim::tasks::{
 use sim::world::TrafficLevel;
 
 use models::policy::QPolicy;
-use sim::eval::Condition;
+use sim::eval::{Condition, EVAL_STAGE, EvalOptions, evaluate};
+use sim::seed::derive_seed;
+use sim::tasks::{TaskResult, run_episodes};
 
 use super::{AgentConfig, TaskRecord, episodes, insertion_setup, load_or_import_map};
 use crate::error::CliError;
@@ -41,7 +43,7 @@ pub trait TaskKind {
     /// The task's `[agent.<table>]` settings, stored in the agent's `task.json`.
     type Config: Clone + Serialize + DeserializeOwned;
     /// Prepared once (map, layouts, renderers) and shared by every environment.
-    type Setup: Send + Sync;
+    type Setup: Send + Sync + 'static;
 
     /// The `[agent.<table>]` of the config file.
     fn config(agent: &AgentConfig) -> Self::Config;
@@ -54,6 +56,17 @@ pub trait TaskKind {
 
     /// One training environment.
     fn train_env(setup: &Arc<Self::Setup>, traffic: TrafficLevel) -> Self::Env;
+
+    /// Validates `policy` (see [`super::validation`]): `episodes` greedy episodes per
+    /// validation condition, drawn as an evaluation with `seed` draws them; per condition,
+    /// the share that reached the goal. Never on conditions held out for evaluation.
+    fn validate(
+        setup: &Arc<Self::Setup>,
+        policy: &QPolicy,
+        traffic: TrafficLevel,
+        episodes: usize,
+        seed: u64,
+    ) -> Vec<(String, f64)>;
 
     /// Logs `count` greedy episodes of `policy` to the recording: the first `count`
     /// episodes of an evaluation with `seed`.
@@ -142,6 +155,29 @@ fn absolute_camera(camera: Option<&CameraViewConfig>) -> Option<CameraViewConfig
     })
 }
 
+/// The share of `episodes` greedy episodes of `policy` in environments from `make_env`
+/// that reached the goal, drawn as an evaluation with `seed` draws them.
+fn reached_share<E: sim::tasks::Task>(
+    make_env: impl Fn() -> E + Sync,
+    policy: &QPolicy,
+    episodes: usize,
+    seed: u64,
+) -> f64 {
+    let seeds: Vec<u64> = (0..episodes as u64)
+        .map(|k| derive_seed(seed, EVAL_STAGE, k))
+        .collect();
+    TaskResult::of(&run_episodes(
+        make_env,
+        || policy.clone(),
+        &seeds,
+        VALIDATION_LOCKSTEP,
+    ))
+    .reaches
+}
+
+/// Episodes a validation runs side by side per network forward pass.
+const VALIDATION_LOCKSTEP: usize = 32;
+
 /// Roundabout insertion (the Parma study).
 #[derive(Debug)]
 pub struct Insertion;
@@ -168,6 +204,31 @@ impl TaskKind for Insertion {
         let mut env = RoundaboutInsertion::new(Arc::clone(setup));
         env.set_traffic(traffic);
         env
+    }
+
+    /// At the training traffic, for each of the evaluation's aggressiveness values.
+    fn validate(
+        setup: &Arc<InsertionSetup>,
+        policy: &QPolicy,
+        traffic: TrafficLevel,
+        episodes: usize,
+        seed: u64,
+    ) -> Vec<(String, f64)> {
+        let conditions: Vec<Condition> = [0.0, 0.5, 1.0]
+            .map(|aggressiveness| Condition {
+                traffic,
+                aggressiveness,
+            })
+            .to_vec();
+        let options = EvalOptions {
+            episodes,
+            seed,
+            lockstep: VALIDATION_LOCKSTEP,
+        };
+        evaluate(setup, || policy.clone(), &conditions, &options, &|_| {})
+            .iter()
+            .map(|r| (format!("aggressiveness {}", r.aggressiveness), r.reaches))
+            .collect()
     }
 
     fn record_episodes(
@@ -222,6 +283,19 @@ impl TaskKind for RoundaboutDriving {
         let mut env = RingDriving::new(Arc::clone(setup));
         env.set_traffic(traffic);
         env
+    }
+
+    /// At the training traffic.
+    fn validate(
+        setup: &Arc<RingDrivingSetup>,
+        policy: &QPolicy,
+        traffic: TrafficLevel,
+        episodes: usize,
+        seed: u64,
+    ) -> Vec<(String, f64)> {
+        let make_env = || Self::train_env(setup, traffic);
+        let reached = reached_share(make_env, policy, episodes, seed);
+        vec![(format!("traffic {}", traffic.name()), reached)]
     }
 
     fn record_episodes(
@@ -298,6 +372,19 @@ impl TaskKind for Route {
         env
     }
 
+    /// On training routes only: the held-out routes are for evaluation.
+    fn validate(
+        setup: &Arc<RouteSetup>,
+        policy: &QPolicy,
+        traffic: TrafficLevel,
+        episodes: usize,
+        seed: u64,
+    ) -> Vec<(String, f64)> {
+        let make_env = || Self::train_env(setup, traffic);
+        let reached = reached_share(make_env, policy, episodes, seed);
+        vec![(TRAINING_ROUTES.to_owned(), reached)]
+    }
+
     fn record_episodes(
         rec: &Stream,
         setup: &Arc<RouteSetup>,
@@ -358,6 +445,24 @@ impl TaskKind for Obstacle {
 
     fn train_env(setup: &Arc<ObstacleSetup>, _: TrafficLevel) -> ObstacleAvoidance {
         ObstacleAvoidance::new(Arc::clone(setup))
+    }
+
+    /// Each scenario on its own, as evaluated.
+    fn validate(
+        setup: &Arc<ObstacleSetup>,
+        policy: &QPolicy,
+        _: TrafficLevel,
+        episodes: usize,
+        seed: u64,
+    ) -> Vec<(String, f64)> {
+        Self::conditions(&[])
+            .into_iter()
+            .map(|condition| {
+                let make_env = || Self::eval_env(setup, &condition);
+                let reached = reached_share(make_env, policy, episodes, seed);
+                (condition, reached)
+            })
+            .collect()
     }
 
     fn record_episodes(

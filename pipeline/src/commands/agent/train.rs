@@ -9,6 +9,7 @@
 
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::recording::Stream;
@@ -17,10 +18,12 @@ use models::ModelError;
 use models::dqn::{
     AGENT_FILE, Checkpoint, EpisodeRecord, LossRecord, OutcomeName, TrainObserver, TrainState,
 };
+use models::policy::QPolicy;
 use serde::Serialize;
 use sim::world::TrafficLevel;
 
 use super::tasks::{Insertion, Obstacle, RoundaboutDriving, Route, TaskKind, task_config};
+use super::validation::{VALIDATION_FILE, Validation, ValidationPoint, validation_seed};
 use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
 use crate::commands::Context;
 use crate::error::CliError;
@@ -60,7 +63,7 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     } else {
         None
     };
-    let (mut dqn, task_config, seed) = match &resume {
+    let (mut dqn, task_config, validation_config, seed) = match &resume {
         Some((checkpoint, task, file)) => {
             if task.task != args.task {
                 return Err(CliError::file(
@@ -76,12 +79,14 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             (
                 checkpoint.config.clone(),
                 task_config::<K>(task, file)?,
+                task.validation,
                 checkpoint.state.seed,
             )
         }
         None => (
             ctx.config.agent.dqn.clone(),
             K::config(&ctx.config.agent),
+            ctx.config.agent.validation,
             ctx.cli.seed,
         ),
     };
@@ -95,6 +100,13 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         dqn.total_steps = steps;
     }
     dqn.validate().map_err(|e| config_error(ctx, e))?;
+    if !validation_config.is_off() && dqn.checkpoint_every == 0 {
+        return Err(CliError::new(
+            "[agent.validation] validates every checkpoint, but checkpoint_every of [agent.dqn] is 0",
+            "set checkpoint_every (e.g. 25000) or leave [agent.validation] out",
+        )
+        .into());
+    }
     let traffic = TrafficLevel::from(args.traffic);
 
     if let Some(map) = &args.map {
@@ -110,6 +122,24 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         traffic,
         config: serde_json::to_value(&task_config)
             .context("the task's config cannot be written as JSON")?,
+        validation: validation_config,
+    };
+    let validation = if validation_config.is_off() {
+        None
+    } else {
+        let (setup, episodes) = (Arc::clone(&setup), validation_config.episodes);
+        let validation_seed = validation_seed(seed);
+        let run = Box::new(move |policy: &QPolicy| {
+            K::validate(&setup, policy, traffic, episodes, validation_seed)
+        });
+        let resumed = resume.as_ref().map(|(c, _, _)| c);
+        Some(Validation::start(
+            validation_config,
+            run,
+            &partial,
+            &out,
+            resumed,
+        )?)
     };
 
     let dir = AtomicDir::create(&out, AGENT_MARKERS)?;
@@ -146,6 +176,7 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             Duration::from_secs(60)
         },
         recent: VecDeque::with_capacity(RATE_WINDOW),
+        validation,
         error: None,
     };
     let result = models::dqn::train(
@@ -159,15 +190,32 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     if let Some(e) = observer.error.take() {
         return Err(e);
     }
-    let checkpoint = result.map_err(|e| models_error(e, &partial))?;
+    let validation = observer.validation.take();
+    let last = result.map_err(|e| models_error(e, &partial))?;
     let elapsed = started.elapsed().as_secs_f64();
+    let mut summary = TrainSummary::new(&last.state, first_step, elapsed);
+    let checkpoint = match validation {
+        Some(validation) => {
+            progress.step("validating the final network");
+            let (chosen, history) = validation.choose(last);
+            if let Some(point) = history.best() {
+                progress.note(&format!(
+                    "the agent: the checkpoint of the best {}",
+                    point.describe()
+                ));
+            }
+            write_json(&dir.path().join(VALIDATION_FILE), &history)?;
+            summary.chosen_steps = Some(chosen.state.steps);
+            chosen
+        }
+        None => last,
+    };
 
     progress.step("writing the agent");
     checkpoint
         .save(dir.path())
         .map_err(|e| models_error(e, dir.path()))?;
     write_json(&dir.path().join(TASK_FILE), &task)?;
-    let summary = TrainSummary::new(&checkpoint.state, first_step, elapsed);
     write_json(&dir.path().join(SUMMARY_FILE), &summary)?;
 
     if let Some(rec) = recording.stream()
@@ -290,6 +338,8 @@ struct TrainProgress<'a, 'b> {
     report_every: Duration,
     /// Outcomes of the newest episodes, for the success rates.
     recent: VecDeque<OutcomeName>,
+    /// Validation of every checkpoint, when `[agent.validation]` asks for it.
+    validation: Option<Validation>,
     /// The first error the observer met (saving a checkpoint, logging).
     error: Option<anyhow::Error>,
 }
@@ -376,10 +426,30 @@ impl TrainObserver for TrainProgress<'_, '_> {
     }
 
     fn checkpoint(&mut self, checkpoint: &Checkpoint) -> Result<(), ModelError> {
+        // Validation first: a kill before the checkpoint is written resumes from the one
+        // before, whose best checkpoint is still kept (see `Validation::start`).
+        if let Some(validation) = &mut self.validation {
+            let (point, best) = validation.validate(checkpoint);
+            self.progress.note(&format!(
+                "{}{}",
+                point.describe(),
+                if best { ", the best so far" } else { "" }
+            ));
+            let saved = validation.save(&self.partial, self.task);
+            if let Some(rec) = self.recording {
+                let result = log_validation(rec, &point);
+                self.keep(result);
+            }
+            self.keep(saved);
+        }
         let result = self.save_checkpoint(checkpoint);
         if result.is_ok() {
             self.progress
                 .note(&format!("checkpoint at step {}", checkpoint.state.steps));
+            if let Some(validation) = &self.validation {
+                let result = validation.prune(&self.partial);
+                self.keep(result);
+            }
         }
         self.keep(result);
         Ok(())
@@ -436,6 +506,22 @@ fn log_losses(rec: &Stream, record: &LossRecord) -> Result<()> {
     )
 }
 
+/// The validation curves: the score and each condition's share reached.
+fn log_validation(rec: &Stream, point: &ValidationPoint) -> Result<()> {
+    rec.set_time_sequence("step", point.steps as i64);
+    let entities: Vec<(String, f64)> = std::iter::once(("score".to_owned(), point.score))
+        .chain(
+            point
+                .reached
+                .iter()
+                .map(|(name, r)| (name.replace(' ', "_"), *r)),
+        )
+        .map(|(name, value)| (format!("agent/validation/{name}"), value))
+        .collect();
+    let series: Vec<(&str, f64)> = entities.iter().map(|(e, v)| (e.as_str(), *v)).collect();
+    crate::recording::log_scalars(rec, &series)
+}
+
 /// `summary.json` of an agent folder.
 #[derive(Debug, Serialize)]
 struct TrainSummary {
@@ -453,6 +539,10 @@ struct TrainSummary {
     crashed: f64,
     off_road: f64,
     time_over: f64,
+    /// With `[agent.validation]`: the transitions of the checkpoint chosen as the agent
+    /// (its files are that checkpoint's; the figures above are of the whole run).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    chosen_steps: Option<u64>,
 }
 
 impl TrainSummary {
@@ -478,6 +568,7 @@ impl TrainSummary {
             crashed: frac(OutcomeName::Crashed),
             off_road: frac(OutcomeName::OffRoad),
             time_over: frac(OutcomeName::TimeOver),
+            chosen_steps: None,
         }
     }
 
