@@ -6,7 +6,9 @@
 //!   front at the yield line); full braking once past it), **Caution** (speed held at half
 //!   the target, within a ±0.5 m/s band). Under every action the ego also keeps an IDM
 //!   following distance to a vehicle ahead on its own path (not to vehicles coming round
-//!   the ring: whether to go in front of those is the decision being learned).
+//!   the ring: whether to go in front of those is the decision being learned), and once
+//!   it has entered it brakes for a vehicle merging ahead of it from a later entry, as the
+//!   world's other drivers do.
 //! - Reward per step: `r_danger + r_terminal + r_indecision + r_speed`, see
 //!   [`RewardConfig`]; σ = 1 − aggressiveness.
 //! - Termination: Reached (the ego's centre passes a point `goal_past_exit_m` into its exit
@@ -463,10 +465,20 @@ impl RoundaboutInsertion {
                 }
             }
         };
-        let follow = world.leader(ego).map_or(f64::INFINITY, |l| {
+        let mut follow = world.leader(ego).map_or(f64::INFINITY, |l| {
             self.follower
                 .idm(v, target.max(0.1), Some((l.gap_m, l.closing_mps)))
         });
+        // Once in, a car cutting in ahead from a later entry is braked for as every other
+        // driver of the world brakes for one (the decision learned is the ego's own entry).
+        if me.committed
+            && let Some(m) = world.merging_leader(ego)
+        {
+            let cut_in = self
+                .follower
+                .idm(v, target.max(0.1), Some((m.gap_m, m.closing_mps)));
+            follow = follow.min(cut_in.max(-self.follower.merge_brake_mps2));
+        }
         chosen.min(follow)
     }
 
@@ -677,5 +689,61 @@ impl RoundaboutInsertion {
             None => 0.0,
         };
         (reward, outcome)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An ego that has entered the ring and meets a car merging in front of it from a later
+    /// entry brakes for it, as the world's drivers do (before, it drove on into it).
+    #[test]
+    fn an_entered_ego_brakes_for_a_car_merging_ahead() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../data/osm/montlake_roundabout.osm.pbf");
+        let map = maps::import_file(&path, &Default::default()).expect("montlake imports");
+        let setup = InsertionSetup::new(Arc::new(map), InsertionConfig::default())
+            .expect("montlake has a roundabout");
+        let env = RoundaboutInsertion::new(Arc::clone(&setup));
+        let layout = Arc::clone(setup.layouts().next().expect("a layout"));
+        // The ego's route drives the merge lane of a route from another entry.
+        let (ego_route, other_route, merge_lane_start) = layout
+            .routes
+            .iter()
+            .enumerate()
+            .find_map(|(a, ra)| {
+                layout.routes.iter().enumerate().find_map(|(b, rb)| {
+                    let start = ra.ring_lane_start(rb.merge_lane)?;
+                    (rb.entry != ra.entry && start - ra.merge_s > 12.0).then_some((a, b, start))
+                })
+            })
+            .expect("two routes meeting in the ring");
+        let config = &setup.config;
+        let other = &layout.routes[other_route];
+        // The ego's Permitted acceleration one step after it is put 9 m before that merge
+        // lane (past its own line, so it counts as entered), with or without a car about
+        // to merge there.
+        let permitted = |with_other: bool| {
+            let mut world = World::new(Arc::clone(&layout), config.traffic, config.ego, 7);
+            world.insert_ego(ego_route, merge_lane_start - 9.0, 4.0, 0.0);
+            if with_other {
+                world.insert_vehicle(other_route, other.merge_s - 2.5, 2.0, 0.5, true);
+            }
+            world.step(0.0);
+            let ego = world.ego_index().expect("the ego");
+            assert!(world.vehicles()[ego].committed);
+            assert!(world.leader(ego).is_none(), "nobody in the ego's lane");
+            if with_other {
+                let merging = world.merging_leader(ego).expect("the car merging ahead");
+                assert!(merging.gap_m < 8.0, "{merging:?}");
+            }
+            env.ego_accel(&world, ego, Action::Permitted)
+        };
+        let (free, cut_in) = (permitted(false), permitted(true));
+        assert!(
+            cut_in < free - 1.0 && cut_in < 0.0,
+            "Permitted gives {cut_in} m/s² towards a car cutting in, {free} m/s² without it"
+        );
     }
 }
