@@ -214,20 +214,9 @@ pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
         }
     };
 
-    // Projecting the points back to WGS84 is most of the work: the lines of roads, lanes
-    // and junctions are projected in parallel (each point exactly as one by one), so a core
-    // that runs out of other work can help; the features keep their order.
-    let road_lines = par_map(map.roads.values(), |road| c.line(&road.reference_line));
-    let lane_lines = par_map(map.lanes.values(), |lane| c.line(&lane.centre));
-    let junction_polygons = par_map(map.junctions.values(), |junction| {
-        (junction.polygon.len() >= 3)
-            .then(|| c.polygon(&junction.polygon))
-            .flatten()
-    });
-
-    for (road, line) in map.roads.values().zip(road_lines) {
+    for road in map.roads.values() {
         push(
-            line,
+            c.line(&road.reference_line),
             Properties::Road {
                 allows_cars: road.allows_cars,
                 highway: &road.highway,
@@ -243,9 +232,9 @@ pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
             },
         );
     }
-    for (lane, line) in map.lanes.values().zip(lane_lines) {
+    for lane in map.lanes.values() {
         push(
-            line,
+            c.line(&lane.centre),
             Properties::Lane {
                 direction: direction_name(lane.direction),
                 id: lane.id.0,
@@ -259,9 +248,12 @@ pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
             },
         );
     }
-    for (junction, polygon) in map.junctions.values().zip(junction_polygons) {
+    for junction in map.junctions.values() {
+        if junction.polygon.len() < 3 {
+            continue;
+        }
         push(
-            polygon,
+            c.polygon(&junction.polygon),
             Properties::Junction {
                 control: junction.control.as_deref(),
                 id: junction.id.0,
@@ -337,16 +329,6 @@ pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
         kind: "FeatureCollection",
         features,
     }
-}
-
-/// `f` of every item, in order, computed in parallel.
-fn par_map<'m, T: Sync + 'm, R: Send>(
-    items: impl Iterator<Item = &'m T>,
-    f: impl Fn(&T) -> R + Sync + Send,
-) -> Vec<R> {
-    use rayon::prelude::*;
-    let items: Vec<&T> = items.collect();
-    items.par_iter().map(|item| f(item)).collect()
 }
 
 /// The GeoJSON as compact text (one line), deterministic for a given map.

@@ -21,7 +21,7 @@ use crate::cli::{
 use crate::clip::{parse_bbox, parse_lat_lon, parse_pair, read_polygon_file};
 use crate::error::{CliError, FileRole, map_error};
 use crate::output::{AtomicDir, Markers, write_file_atomic};
-use crate::recording::{self, Recording};
+use crate::recording;
 
 /// The files `map import` writes.
 pub const MAP_JSON: &str = "map.json";
@@ -285,32 +285,9 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         "building the map (profile {})",
         options.profile.name
     ));
-    // The build runs on one core: meanwhile another thread hashes the input for
-    // summary.json and, when the recording is a file in the new folder and that folder's
-    // parent exists (so nothing is left behind if the build fails), creates the folder and
-    // opens the recording.
-    let prepare_early = ctx.cli.rerun == RerunMode::Save
-        && ctx.recording.is_none()
-        && out
-            .parent()
-            .is_none_or(|p| p.as_os_str().is_empty() || p.is_dir());
-    let (built, side) = std::thread::scope(|s| {
-        let side = s.spawn(|| {
-            let hashed = sha256_file(input);
-            let prepared = prepare_early.then(|| -> Result<(Recording, AtomicDir)> {
-                let dir = AtomicDir::create(&out, IMPORT_MARKERS)?;
-                let rec = ctx.open_recording(Some(dir.path()))?;
-                Ok((rec, dir))
-            });
-            (hashed, prepared)
-        });
-        let built = maps::import_osm(&osm, options);
-        (built, side.join())
-    });
-    let (hashed, prepared) = match side {
-        Ok(side) => side,
-        Err(panic) => std::panic::resume_unwind(panic),
-    };
+    // The reader parses on every core but the build runs on one: hash the input for
+    // summary.json on another core meanwhile.
+    let (built, hashed) = rayon::join(|| maps::import_osm(&osm, options), || sha256_file(input));
     let map = built.map_err(|e| map_error(input, e, FileRole::OsmInput))?;
     // Freeing the parsed OSM data (hundreds of thousands of small allocations) costs more
     // than the rest of the import's bookkeeping; the process ends right after the import.
@@ -344,13 +321,7 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
     };
 
     progress.step(&format!("writing {}", out.display()));
-    let (rec, dir) = match prepared {
-        Some(prepared) => {
-            let (rec, dir) = prepared?;
-            (Some(rec), dir)
-        }
-        None => (None, AtomicDir::create(&out, IMPORT_MARKERS)?),
-    };
+    let dir = AtomicDir::create(&out, IMPORT_MARKERS)?;
     // The recording is independent of the files: log it while they are encoded. It is
     // finished (flushed, closed) before the rename, so the .rrd is complete when the folder appears.
     let (written, recorded) = rayon::join(
@@ -359,10 +330,7 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
             if ctx.cli.rerun == RerunMode::Off {
                 return Ok(());
             }
-            let rec = match rec {
-                Some(rec) => rec,
-                None => ctx.open_recording(Some(dir.path()))?,
-            };
+            let rec = ctx.open_recording(Some(dir.path()))?;
             if let Some(stream) = rec.stream() {
                 recording::log_map(stream, &map)?;
             }
