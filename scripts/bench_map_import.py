@@ -11,9 +11,11 @@ with `osmium cat` once beforehand, outside the timing.
 
 Usage (from the repository root, after `cargo build --release -p pipeline`):
     SUMO_HOME=/usr/share/sumo python3 scripts/bench_map_import.py [--runs 7] [--out docs/benchmarks/map_import.json]
-        [--pipeline PATH]
+        [--pipeline PATH] [--compare PATH]
 The binary is $CARGO_TARGET_DIR/release/pipeline when CARGO_TARGET_DIR is set, else
-target/release/pipeline; --pipeline names another.
+target/release/pipeline; --pipeline names another. --compare PATH times a second build of
+ours (an earlier one, say) in the same alternation (ours, netconvert, compared, ours, ...), so
+a before/after comparison sees the same machine state even when other work comes and goes.
 Needs: netconvert (Debian `sumo`), osmium (Debian `osmium-tool`).
 """
 import argparse
@@ -56,6 +58,7 @@ def main():
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "map_import.json"))
     ap.add_argument("--pipeline", type=Path, default=PIPELINE, help=f"the binary to time (default {PIPELINE})")
+    ap.add_argument("--compare", type=Path, help="another pipeline binary to time in the same alternation")
     args = ap.parse_args()
     pipeline = args.pipeline
     if args.runs < 5:
@@ -65,6 +68,8 @@ def main():
             sys.exit(f"{tool} not found: apt-get install sumo osmium-tool")
     if not pipeline.exists():
         sys.exit(f"{pipeline} not found: cargo build --release -p pipeline")
+    if args.compare and not args.compare.exists():
+        sys.exit(f"{args.compare} not found")
     env = dict(os.environ, SUMO_HOME=os.environ.get("SUMO_HOME", "/usr/share/sumo"))
     version = subprocess.run(["netconvert", "--version"], capture_output=True, text=True, env=env).stdout.splitlines()[0]
     results = []
@@ -80,18 +85,25 @@ def main():
                 their_path = DATA / their_in
             n = [0]
 
-            def ours():
+            def ours(binary=pipeline):
                 n[0] += 1
-                return timed([str(pipeline), "-q", "map", "import", str(ours_path), "--out", str(tmp / f"ours{n[0]}")])
+                out = tmp / f"ours{n[0]}"
+                dt = timed([str(binary), "-q", "map", "import", str(ours_path), "--out", str(out)])
+                shutil.rmtree(out)
+                return dt
 
             def theirs():
                 return timed(["netconvert", "--osm-files", str(their_path), *NETCONVERT_OPTS, "-o", str(tmp / "net.xml")], env)
 
             ours(), theirs()  # warm-up: file cache, dynamic loader
-            ours_t, their_t = [], []
+            if args.compare:
+                ours(args.compare)
+            ours_t, their_t, compare_t = [], [], []
             for _ in range(args.runs):
                 ours_t.append(ours())
                 their_t.append(theirs())
+                if args.compare:
+                    compare_t.append(ours(args.compare))
             row = {
                 "case": label,
                 "ours_input": ours_in,
@@ -102,11 +114,19 @@ def main():
                 "netconvert_runs_s": [round(x, 4) for x in their_t],
             }
             row["speedup"] = round(row["netconvert_median_s"] / row["ours_median_s"], 1)
+            line = f"{label:24s} ours {row['ours_median_s']*1e3:7.1f} ms  netconvert {row['netconvert_median_s']*1e3:7.1f} ms  ratio {row['speedup']:5.1f}x"
+            if args.compare:
+                row["compared_median_s"] = round(statistics.median(compare_t), 4)
+                row["compared_runs_s"] = [round(x, 4) for x in compare_t]
+                row["compared_speedup"] = round(row["netconvert_median_s"] / row["compared_median_s"], 1)
+                line += f"  | compared {row['compared_median_s']*1e3:7.1f} ms  ratio {row['compared_speedup']:5.1f}x"
             results.append(row)
-            print(f"{label:24s} ours {row['ours_median_s']*1e3:7.1f} ms  netconvert {row['netconvert_median_s']*1e3:7.1f} ms  ratio {row['speedup']:5.1f}x", flush=True)
+            print(line, flush=True)
     out = {
         "what": "median wall time of `pipeline -q map import F --out DIR` (all outputs) vs `netconvert --osm-files F.osm " + " ".join(NETCONVERT_OPTS) + " -o net.xml`",
         "runs": args.runs,
+        "pipeline": str(pipeline),
+        "compared": str(args.compare) if args.compare else None,
         "netconvert": version,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
         # Other work on the machine slows both tools; the 1, 5 and 15 minute load averages.

@@ -161,7 +161,7 @@ impl<'a> Builder<'a> {
             split.insert(r[r.len() - 1]);
         }
 
-        let pos = |n: i64| -> Point {
+        let project = |n: i64| -> Point {
             osm.nodes
                 .get(&n)
                 .map(|node| projector.project(node.pos))
@@ -196,6 +196,18 @@ impl<'a> Builder<'a> {
                 final_pieces.push((w, p));
             }
         }
+        // Each node is projected once (ends of pieces are used several times), on every core.
+        let positions: BTreeMap<i64, Point> = {
+            use rayon::prelude::*;
+            let ids: BTreeSet<i64> = final_pieces
+                .iter()
+                .flat_map(|(_, p)| p.iter().copied())
+                .collect();
+            let ids: Vec<i64> = ids.into_iter().collect();
+            let points: Vec<Point> = ids.par_iter().map(|&n| project(n)).collect();
+            ids.into_iter().zip(points).collect()
+        };
+        let pos = |n: i64| -> Point { positions.get(&n).copied().unwrap_or_else(|| project(n)) };
         for (way_id, nodes) in final_pieces {
             let mut line: Vec<Point> = nodes.iter().map(|&n| pos(n)).collect();
             // Zero-length segments (distinct nodes at one position) are dropped; the end nodes stay.

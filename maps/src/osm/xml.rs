@@ -11,6 +11,8 @@ use quick_xml::events::{BytesStart, Event};
 use super::{Member, MemberKind, OsmData, OsmRelation, OsmWay, Tags};
 use crate::error::MapError;
 
+mod fast;
+
 /// Reads an OSM XML file, plain or gzip-compressed.
 pub fn read_xml(path: &Path) -> Result<OsmData, MapError> {
     let raw = std::fs::read(path).map_err(|e| MapError::io(path, e))?;
@@ -26,7 +28,9 @@ pub fn read_xml(path: &Path) -> Result<OsmData, MapError> {
     parse_xml(&text).map_err(|e| e.with_path(path))
 }
 
+#[derive(Default)]
 enum Open {
+    #[default]
     None,
     Node {
         id: i64,
@@ -165,15 +169,20 @@ struct Piece {
     ends_inside_element: bool,
 }
 
-/// Parses a whole file or one piece of it.
+/// Parses a whole file or one piece of it: with [`fast::parse_piece`] when the text keeps to
+/// the plain form OSM writers produce, else (and for every error) with quick-xml.
 fn parse_piece(input: &[u8]) -> Result<Piece, MapError> {
+    match fast::parse_piece(input) {
+        Some(piece) => Ok(piece),
+        None => parse_piece_events(input),
+    }
+}
+
+/// Parses a whole file or one piece of it with quick-xml's event reader.
+fn parse_piece_events(input: &[u8]) -> Result<Piece, MapError> {
     let mut reader = quick_xml::Reader::from_reader(input);
     reader.config_mut().trim_text(true);
-    let mut data = OsmData::default();
-    let mut open = Open::None;
-    let mut saw_root = false;
-    let mut depth: usize = 0;
-    let mut outermost_is_osm = false;
+    let mut st = State::default();
     loop {
         let pos = reader.buffer_position();
         let event = reader.read_event().map_err(|e| MapError::Parse {
@@ -187,112 +196,145 @@ fn parse_piece(input: &[u8]) -> Result<Piece, MapError> {
         match event {
             Event::Start(ref e) | Event::Empty(ref e) => {
                 let is_empty = matches!(event, Event::Empty(_));
-                if !is_empty {
-                    if depth == 0 {
-                        outermost_is_osm = e.name().as_ref() == b"osm";
-                    }
-                    depth += 1;
-                }
-                match e.name().as_ref() {
-                    b"osm" | b"osmChange" => saw_root = true,
-                    b"node" => {
-                        let a = Attrs::read(e).map_err(bad)?;
-                        if a.deleted {
-                            continue;
-                        }
-                        let id = a.id.ok_or_else(|| bad("a <node> has no id".into()))?;
-                        let (lat, lon) = match (a.lat, a.lon) {
-                            (Some(lat), Some(lon)) => (lat, lon),
-                            _ => (f64::NAN, f64::NAN),
-                        };
-                        open = Open::Node {
-                            id,
-                            lat,
-                            lon,
-                            tags: Tags::default(),
-                        };
-                        if is_empty {
-                            close(&mut data, &mut open);
-                        }
-                    }
-                    b"way" => {
-                        let a = Attrs::read(e).map_err(bad)?;
-                        let id = a.id.ok_or_else(|| bad("a <way> has no id".into()))?;
-                        open = Open::Way {
-                            id,
-                            way: OsmWay {
-                                nodes: Vec::new(),
-                                tags: Tags::default(),
-                            },
-                        };
-                        if is_empty || a.deleted {
-                            close(&mut data, &mut open);
-                        }
-                    }
-                    b"relation" => {
-                        let a = Attrs::read(e).map_err(bad)?;
-                        let id = a.id.ok_or_else(|| bad("a <relation> has no id".into()))?;
-                        open = Open::Relation {
-                            id,
-                            rel: OsmRelation {
-                                members: Vec::new(),
-                                tags: Tags::default(),
-                            },
-                        };
-                        if is_empty || a.deleted {
-                            close(&mut data, &mut open);
-                        }
-                    }
-                    b"tag" => {
-                        let a = Attrs::read(e).map_err(bad)?;
-                        if let (Some(k), Some(v)) = (a.k, a.v) {
-                            match &mut open {
-                                Open::Node { tags, .. } => tags.insert(k, v),
-                                Open::Way { way, .. } => way.tags.insert(k, v),
-                                Open::Relation { rel, .. } => rel.tags.insert(k, v),
-                                Open::None => {}
-                            }
-                        }
-                    }
-                    b"nd" => {
-                        let a = Attrs::read(e).map_err(bad)?;
-                        if let (Open::Way { way, .. }, Some(r)) = (&mut open, a.reference) {
-                            way.nodes.push(r);
-                        }
-                    }
-                    b"member" => {
-                        let a = Attrs::read(e).map_err(bad)?;
-                        if let (Open::Relation { rel, .. }, Some(r), Some(kind)) =
-                            (&mut open, a.reference, a.member_kind)
-                        {
-                            rel.members.push(Member {
-                                kind,
-                                id: r,
-                                role: a.role.unwrap_or_default(),
-                            });
-                        }
-                    }
-                    _ => {}
-                }
+                st.start_element(e.name().as_ref(), is_empty, || Attrs::read(e))
+                    .map_err(bad)?;
             }
-            Event::End(ref e) => {
-                // quick-xml has checked that it closes the innermost open element.
-                depth = depth.saturating_sub(1);
-                if matches!(e.name().as_ref(), b"node" | b"way" | b"relation") {
-                    close(&mut data, &mut open);
-                }
-            }
+            // quick-xml has checked that it closes the innermost open element.
+            Event::End(ref e) => st.end_element(e.name().as_ref()),
             Event::Eof => break,
             _ => {}
         }
     }
-    Ok(Piece {
-        data,
-        saw_root,
-        open_elements: depth,
-        outermost_is_osm,
-        ends_inside_element: !matches!(open, Open::None),
-    })
+    Ok(st.finish())
+}
+
+/// What a parse has read so far; both readers feed it the same element events.
+#[derive(Default)]
+struct State {
+    data: OsmData,
+    open: Open,
+    saw_root: bool,
+    depth: usize,
+    outermost_is_osm: bool,
+}
+
+impl State {
+    /// A start tag (`is_empty`: self-closing); `attrs` reads its attributes, only for the
+    /// elements whose attributes matter.
+    fn start_element(
+        &mut self,
+        name: &[u8],
+        is_empty: bool,
+        attrs: impl FnOnce() -> Result<Attrs, String>,
+    ) -> Result<(), String> {
+        if !is_empty {
+            if self.depth == 0 {
+                self.outermost_is_osm = name == b"osm";
+            }
+            self.depth += 1;
+        }
+        let (data, open) = (&mut self.data, &mut self.open);
+        match name {
+            b"osm" | b"osmChange" => self.saw_root = true,
+            b"node" => {
+                let a = attrs()?;
+                if a.deleted {
+                    return Ok(());
+                }
+                let id = a.id.ok_or("a <node> has no id")?;
+                let (lat, lon) = match (a.lat, a.lon) {
+                    (Some(lat), Some(lon)) => (lat, lon),
+                    _ => (f64::NAN, f64::NAN),
+                };
+                *open = Open::Node {
+                    id,
+                    lat,
+                    lon,
+                    tags: Tags::default(),
+                };
+                if is_empty {
+                    close(data, open);
+                }
+            }
+            b"way" => {
+                let a = attrs()?;
+                let id = a.id.ok_or("a <way> has no id")?;
+                *open = Open::Way {
+                    id,
+                    way: OsmWay {
+                        nodes: Vec::new(),
+                        tags: Tags::default(),
+                    },
+                };
+                if is_empty || a.deleted {
+                    close(data, open);
+                }
+            }
+            b"relation" => {
+                let a = attrs()?;
+                let id = a.id.ok_or("a <relation> has no id")?;
+                *open = Open::Relation {
+                    id,
+                    rel: OsmRelation {
+                        members: Vec::new(),
+                        tags: Tags::default(),
+                    },
+                };
+                if is_empty || a.deleted {
+                    close(data, open);
+                }
+            }
+            b"tag" => {
+                let a = attrs()?;
+                if let (Some(k), Some(v)) = (a.k, a.v) {
+                    match open {
+                        Open::Node { tags, .. } => tags.insert(k, v),
+                        Open::Way { way, .. } => way.tags.insert(k, v),
+                        Open::Relation { rel, .. } => rel.tags.insert(k, v),
+                        Open::None => {}
+                    }
+                }
+            }
+            b"nd" => {
+                let a = attrs()?;
+                if let (Open::Way { way, .. }, Some(r)) = (open, a.reference) {
+                    way.nodes.push(r);
+                }
+            }
+            b"member" => {
+                let a = attrs()?;
+                if let (Open::Relation { rel, .. }, Some(r), Some(kind)) =
+                    (open, a.reference, a.member_kind)
+                {
+                    rel.members.push(Member {
+                        kind,
+                        id: r,
+                        role: a.role.unwrap_or_default(),
+                    });
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// An end tag; the reader has checked that it closes the innermost open element.
+    fn end_element(&mut self, name: &[u8]) {
+        self.depth = self.depth.saturating_sub(1);
+        if matches!(name, b"node" | b"way" | b"relation") {
+            close(&mut self.data, &mut self.open);
+        }
+    }
+
+    fn finish(self) -> Piece {
+        Piece {
+            ends_inside_element: !matches!(self.open, Open::None),
+            data: self.data,
+            saw_root: self.saw_root,
+            open_elements: self.depth,
+            outermost_is_osm: self.outermost_is_osm,
+        }
+    }
 }
 
 fn close(data: &mut OsmData, open: &mut Open) {
@@ -309,7 +351,7 @@ fn close(data: &mut OsmData, open: &mut Open) {
 }
 
 #[derive(Default)]
-struct Attrs {
+pub(super) struct Attrs {
     id: Option<i64>,
     lat: Option<f64>,
     lon: Option<f64>,
@@ -335,28 +377,42 @@ impl Attrs {
             let text = || {
                 std::str::from_utf8(&attr.value).map_err(|_| "attribute is not UTF-8".to_string())
             };
-            match attr.key.as_ref() {
-                b"id" => a.id = Some(parse_int(text()?)?),
-                b"ref" => a.reference = Some(parse_int(text()?)?),
-                b"lat" => a.lat = Some(parse_float(text()?)?),
-                b"lon" => a.lon = Some(parse_float(text()?)?),
-                b"k" => a.k = Some(raw()?),
-                b"v" => a.v = Some(raw()?),
-                b"role" => a.role = Some(raw()?),
-                b"type" => {
-                    a.member_kind = match attr.value.as_ref() {
-                        b"node" => Some(MemberKind::Node),
-                        b"way" => Some(MemberKind::Way),
-                        b"relation" => Some(MemberKind::Relation),
-                        _ => None,
-                    }
-                }
-                b"action" => a.deleted |= attr.value.as_ref() == b"delete",
-                b"visible" => a.deleted |= attr.value.as_ref() == b"false",
-                _ => {}
-            }
+            a.set(attr.key.as_ref(), &attr.value, text, raw)?;
         }
         Ok(a)
+    }
+
+    /// Takes one attribute (a later one of the same name wins): `value` is its raw bytes,
+    /// `text` the same as UTF-8 and `unescaped` its unescaped text, both computed only for
+    /// the attributes read.
+    pub(super) fn set<'v>(
+        &mut self,
+        key: &[u8],
+        value: &[u8],
+        text: impl FnOnce() -> Result<&'v str, String>,
+        unescaped: impl FnOnce() -> Result<String, String>,
+    ) -> Result<(), String> {
+        match key {
+            b"id" => self.id = Some(parse_int(text()?)?),
+            b"ref" => self.reference = Some(parse_int(text()?)?),
+            b"lat" => self.lat = Some(parse_float(text()?)?),
+            b"lon" => self.lon = Some(parse_float(text()?)?),
+            b"k" => self.k = Some(unescaped()?),
+            b"v" => self.v = Some(unescaped()?),
+            b"role" => self.role = Some(unescaped()?),
+            b"type" => {
+                self.member_kind = match value {
+                    b"node" => Some(MemberKind::Node),
+                    b"way" => Some(MemberKind::Way),
+                    b"relation" => Some(MemberKind::Relation),
+                    _ => None,
+                }
+            }
+            b"action" => self.deleted |= value == b"delete",
+            b"visible" => self.deleted |= value == b"false",
+            _ => {}
+        }
+        Ok(())
     }
 }
 
