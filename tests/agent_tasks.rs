@@ -8,13 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assert_success, read_json, run, stderr};
-
-fn bundled(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../data/osm")
-        .join(name)
-}
+use common::{agent_train, assert_success, bundled_osm, read_json, run, stderr};
 
 #[test]
 fn route_following_trains_and_evaluates_with_its_baselines() {
@@ -27,22 +21,9 @@ fn route_following_trains_and_evaluates_with_its_baselines() {
          [agent.route]\npool_size = 16\n",
     )
     .unwrap();
-    let map = bundled("northwestern_nu.osm.pbf");
+    let map = bundled_osm("northwestern_nu.osm.pbf");
     let agent = dir.path().join("agent");
-    let out = run([
-        "--rerun".as_ref(),
-        "off".as_ref(),
-        "--config".as_ref(),
-        config.as_os_str(),
-        "agent".as_ref(),
-        "train".as_ref(),
-        "--task".as_ref(),
-        "route-following".as_ref(),
-        "--map".as_ref(),
-        map.as_os_str(),
-        "--out".as_ref(),
-        agent.as_os_str(),
-    ]);
+    let out = agent_train(&config, "route-following", Some(&map), &agent);
     assert_success(&out, "agent train --task route-following");
     let task = read_json(&agent.join("task.json"));
     assert_eq!(task["task"], "route-following");
@@ -124,18 +105,7 @@ fn train_obstacle(dir: &Path, name: &str, config: &str) -> (PathBuf, std::proces
     let file = dir.join(format!("{name}.toml"));
     std::fs::write(&file, config).unwrap();
     let agent = dir.join(name);
-    let out = run([
-        "--rerun".as_ref(),
-        "off".as_ref(),
-        "--config".as_ref(),
-        file.as_os_str(),
-        "agent".as_ref(),
-        "train".as_ref(),
-        "--task".as_ref(),
-        "obstacle-avoidance".as_ref(),
-        "--out".as_ref(),
-        agent.as_os_str(),
-    ]);
+    let out = agent_train(&file, "obstacle-avoidance", None, &agent);
     (agent, out)
 }
 

@@ -10,14 +10,8 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assert_success, read_json, run, stderr};
+use common::{agent_train, assert_success, bundled_osm, read_json, run, stderr};
 use models::segmenter::{PspNetConfig, files};
-
-fn bundled(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../data/osm")
-        .join(name)
-}
 
 /// Writes a small random segmenter into `dir`.
 fn random_segmenter(dir: &Path) {
@@ -49,23 +43,7 @@ fn write_config(dir: &Path, table: &str, segmenter: &Path) -> PathBuf {
 }
 
 fn train(config: &Path, task: &str, map: &str, out: &Path) -> std::process::Output {
-    let map = bundled(map);
-    run([
-        "--rerun".as_ref(),
-        "off".as_ref(),
-        "--config".as_ref(),
-        config.as_os_str(),
-        "agent".as_ref(),
-        "train".as_ref(),
-        "--task".as_ref(),
-        task.as_ref(),
-        "--map".as_ref(),
-        map.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-        "--record-episodes".as_ref(),
-        "0".as_ref(),
-    ])
+    agent_train(config, task, Some(&bundled_osm(map)), out)
 }
 
 #[test]

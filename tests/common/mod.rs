@@ -34,6 +34,36 @@ pub fn osm_file(name: &str) -> Option<PathBuf> {
     }
 }
 
+/// A file of the repository's bundled OpenStreetMap extracts (`data/osm`).
+pub fn bundled_osm(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data/osm")
+        .join(name)
+}
+
+/// `pipeline --rerun off --config CONFIG agent train --task TASK [--map MAP] --out OUT
+/// --record-episodes 0`.
+pub fn agent_train(config: &Path, task: &str, map: Option<&Path>, out: &Path) -> Output {
+    let mut args: Vec<&std::ffi::OsStr> = vec![
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "--config".as_ref(),
+        config.as_os_str(),
+        "agent".as_ref(),
+        "train".as_ref(),
+        "--task".as_ref(),
+        task.as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--record-episodes".as_ref(),
+        "0".as_ref(),
+    ];
+    if let Some(map) = map {
+        args.extend(["--map".as_ref(), map.as_os_str()]);
+    }
+    run(args)
+}
+
 /// The binary under test.
 pub fn pipeline() -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_pipeline"));
