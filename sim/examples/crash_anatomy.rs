@@ -54,6 +54,24 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 break;
             }
         }
+        if env.outcome() == Some(Outcome::OffRoad) {
+            let world = env.world().unwrap();
+            let ego = &world.vehicles()[world.ego_index().unwrap()];
+            let r = world.route(ego);
+            let (on_path, _) = r.path.pose_at(ego.s);
+            println!(
+                "ep {k:4} off-road: route {}->{} s {:.1} (yield {:.1} merge {:.1} exit {:.1} end {:.1}) off path {:.2} path point navigable {}",
+                r.entry,
+                r.exit,
+                ego.s,
+                r.yield_s,
+                r.merge_s,
+                r.exit_s,
+                r.path.length(),
+                on_path.distance(ego.position),
+                env.renderer().raster().navigable(on_path)
+            );
+        }
         if env.outcome() != Some(Outcome::Crashed) {
             continue;
         }

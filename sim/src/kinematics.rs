@@ -61,6 +61,34 @@ impl Bicycle {
             .atan()
             .clamp(-max_steer_rad, max_steer_rad)
     }
+
+    /// The front axle's position.
+    pub fn front(&self) -> Point {
+        self.rear
+            .add(direction(self.heading).scale(self.wheelbase_m))
+    }
+
+    /// Stanley steering angle, within `±max_steer_rad`: the heading error of the front axle
+    /// against the path point nearest to it (`path_point`, heading `path_heading`), plus
+    /// `atan(gain · cross-track error / (speed + 1 m/s))` to close the lateral gap. Unlike
+    /// pure pursuit it does not cut corners: the car turns when the path turns under its
+    /// front wheels.
+    pub fn stanley(
+        &self,
+        path_point: Point,
+        path_heading: f64,
+        speed_mps: f64,
+        gain: f64,
+        max_steer_rad: f64,
+    ) -> f64 {
+        // Positive when the path lies to the car's left (steer left).
+        let cross_track = path_point
+            .sub(self.front())
+            .dot(direction(path_heading).perp());
+        let heading_error = wrap_angle(path_heading - self.heading);
+        (heading_error + (gain * cross_track / (speed_mps.max(0.0) + 1.0)).atan())
+            .clamp(-max_steer_rad, max_steer_rad)
+    }
 }
 
 /// The unit vector of a heading.
@@ -101,5 +129,34 @@ mod tests {
         assert!(bike.pure_pursuit(Point::new(5.0, 2.0), 0.6) > 0.0);
         assert!(bike.pure_pursuit(Point::new(5.0, -2.0), 0.6) < 0.0);
         assert_eq!(bike.pure_pursuit(Point::new(0.0, 5.0), 0.6), 0.6);
+    }
+
+    /// Stanley steering on a circle of 6 m radius (a mini roundabout's ring) at 4 m/s:
+    /// after settling, the front axle stays on the circle (within 10 cm) and the centre,
+    /// half a wheelbase behind it, within 0.4 m of it.
+    #[test]
+    fn stanley_steering_holds_a_tight_circle() {
+        let radius = 6.0;
+        let on_circle = |p: Point| {
+            let a = p.y.atan2(p.x);
+            (
+                Point::new(radius * a.cos(), radius * a.sin()),
+                a + std::f64::consts::FRAC_PI_2,
+            )
+        };
+        let mut bike =
+            Bicycle::at_centre(Point::new(radius, 0.0), std::f64::consts::FRAC_PI_2, 2.7);
+        let speed = 4.0;
+        let (mut worst_front, mut worst): (f64, f64) = (0.0, 0.0);
+        for step in 0..400 {
+            let (point, heading) = on_circle(bike.front());
+            let steer = bike.stanley(point, heading, speed, 2.0, 0.6);
+            bike.advance(speed * 0.1, steer);
+            if step > 50 {
+                worst = worst.max((bike.centre().norm() - radius).abs());
+                worst_front = worst_front.max((bike.front().norm() - radius).abs());
+            }
+        }
+        assert!(worst_front < 0.1 && worst < 0.4, "{worst_front} {worst}");
     }
 }

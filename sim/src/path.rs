@@ -23,13 +23,19 @@ pub struct Piece {
     pub s_end: f64,
 }
 
-/// How drivers pick speeds along a path.
+/// How drivers drive a path: the line they take and the speeds they pick along it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SpeedProfile {
     /// Lateral acceleration a driver accepts in curves, m/s².
     pub lateral_accel_mps2: f64,
     /// Deceleration used to slow down ahead of a curve, m/s².
     pub anticipation_decel_mps2: f64,
+    /// Where the mapped line turns tighter than this radius (lane graphs of small
+    /// roundabouts join entry, ring and exit with kinks no car can steer), drivers round
+    /// it off: the path is smoothed there until it does not, moving no point more than
+    /// [`MAX_ROUNDING_M`]; a path that needs more is not drivable (no path). m; 0 keeps
+    /// the mapped line.
+    pub min_turn_radius_m: f64,
 }
 
 impl Default for SpeedProfile {
@@ -37,8 +43,98 @@ impl Default for SpeedProfile {
         SpeedProfile {
             lateral_accel_mps2: 2.5,
             anticipation_decel_mps2: 1.5,
+            min_turn_radius_m: 0.0,
         }
     }
+}
+
+/// Most smoothing passes spent on one path's kinks.
+const MAX_SMOOTHING_PASSES: usize = 400;
+/// The farthest rounding moves a point of the mapped line, m: drivers round kinks off
+/// within their lane, they do not take another road.
+const MAX_ROUNDING_M: f64 = 2.0;
+/// Samples on either side over which a path's turning is measured (1.5 m).
+const KINK_WINDOW: usize = 3;
+
+/// Rounds off the points of `line` where it turns tighter than `min_radius_m` (ends kept):
+/// repeated neighbour averaging of those points and the window around them, until no point
+/// turns too tightly or [`MAX_SMOOTHING_PASSES`] is reached.
+fn round_off_kinks(line: &mut [Point], min_radius_m: f64) -> Rounding {
+    let n = line.len();
+    if n < 3 || min_radius_m <= 0.0 {
+        return Rounding::Untouched;
+    }
+    let mapped = line.to_vec();
+    let mut marked = vec![false; n];
+    let mut next = line.to_vec();
+    for pass in 0..MAX_SMOOTHING_PASSES {
+        marked.iter_mut().for_each(|m| *m = false);
+        let mut any = false;
+        for i in 1..n - 1 {
+            // Turning per metre between the chords to the points KINK_WINDOW before and
+            // after: a mapped polygon's corners (a ring drawn with a few nodes) spread over
+            // the window and pass; a kink does not.
+            let (before, after) = (i.saturating_sub(KINK_WINDOW), (i + KINK_WINDOW).min(n - 1));
+            let (a, b) = (line[i].sub(line[before]), line[after].sub(line[i]));
+            let turn = wrap_angle(b.y.atan2(b.x) - a.y.atan2(a.x)).abs();
+            if turn * 2.0 > (a.norm() + b.norm()) / min_radius_m {
+                any = true;
+                for m in &mut marked[before.max(1)..after] {
+                    *m = true;
+                }
+            }
+        }
+        if !any {
+            return if pass > 0 {
+                Rounding::Rounded
+            } else {
+                Rounding::Untouched
+            };
+        }
+        for i in 1..n - 1 {
+            next[i] = if marked[i] {
+                let averaged = line[i - 1]
+                    .add(line[i + 1])
+                    .scale(0.25)
+                    .add(line[i].scale(0.5));
+                // Never farther than MAX_ROUNDING_M from the mapped line.
+                let moved = averaged.sub(mapped[i]);
+                let d = moved.norm();
+                if d > MAX_ROUNDING_M {
+                    mapped[i].add(moved.scale(MAX_ROUNDING_M / d))
+                } else {
+                    averaged
+                }
+            } else {
+                line[i]
+            };
+        }
+        line[1..n - 1].copy_from_slice(&next[1..n - 1]);
+    }
+    Rounding::TooTight
+}
+
+/// What [`round_off_kinks`] did to a line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Rounding {
+    /// No kink: the mapped line as it was.
+    Untouched,
+    /// Kinks rounded off to the radius.
+    Rounded,
+    /// A turn too tight to round off within [`MAX_ROUNDING_M`] of the line.
+    TooTight,
+}
+
+/// Length along `line` from its start to each of its points.
+fn cumulative_lengths(line: &[Point]) -> Vec<f64> {
+    let mut along = Vec::with_capacity(line.len());
+    let mut total = 0.0;
+    along.push(0.0);
+    for w in line.windows(2) {
+        total += w[0].distance(w[1]);
+        along.push(total);
+    }
+    along
 }
 
 /// A drivable path: its pieces, its samples and its speed profile.
@@ -66,7 +162,8 @@ impl Path {
     /// Builds a path over `keys` (each lane followed by the connection that leaves it, and so
     /// on), starting `trim_start_m` into the first piece and ending after `max_length_m` at
     /// most (later pieces dropped, the last one cut). Returns None when a key is missing
-    /// from the map or the path has no length.
+    /// from the map, the path has no length, or it turns too tightly to be driven (see
+    /// [`SpeedProfile::min_turn_radius_m`]).
     pub fn new(
         map: &Map,
         keys: &[PieceKey],
@@ -124,7 +221,7 @@ impl Path {
             });
             s += len;
         }
-        let length = s;
+        let mut length = s;
         if !(length > 0.0 && length.is_finite()) {
             return None;
         }
@@ -132,11 +229,37 @@ impl Path {
             .iter()
             .map(|(_, p, _)| (p.as_slice(), None))
             .collect();
-        let samples = maps::route::waypoints(&refs, SAMPLE_SPACING_M);
-        let n = samples.len();
-        if n < 2 {
+        let mut samples = maps::route::waypoints(&refs, SAMPLE_SPACING_M);
+        if samples.len() < 2 {
             return None;
         }
+        if profile.min_turn_radius_m > 0.0 {
+            let mut line: Vec<Point> = samples.iter().map(|w| w.position).collect();
+            let rounding = round_off_kinks(&mut line, profile.min_turn_radius_m);
+            if rounding == Rounding::TooTight {
+                return None;
+            }
+            if rounding == Rounding::Rounded {
+                // The rounded line is shorter: measure the pieces on it, and sample it again.
+                let old_spacing = length / (samples.len() - 1) as f64;
+                let along = cumulative_lengths(&line);
+                let on_new_line = |s: f64| {
+                    let x = (s / old_spacing).clamp(0.0, (line.len() - 1) as f64);
+                    let i = (x.floor() as usize).min(line.len() - 2);
+                    along[i] + (along[i + 1] - along[i]) * (x - i as f64)
+                };
+                for piece in &mut pieces {
+                    piece.s_start = on_new_line(piece.s_start);
+                    piece.s_end = on_new_line(piece.s_end);
+                }
+                length = along[along.len() - 1];
+                samples = maps::route::waypoints(&[(line.as_slice(), None)], SAMPLE_SPACING_M);
+                if samples.len() < 2 {
+                    return None;
+                }
+            }
+        }
+        let n = samples.len();
         let spacing = length / (n - 1) as f64;
         let points: Vec<Point> = samples.iter().map(|w| w.position).collect();
         let headings: Vec<f64> = samples.iter().map(|w| w.heading_rad).collect();
@@ -339,5 +462,65 @@ mod tests {
         let (s, d) = path.project(Point::new(-20.0, -9.0), 30.0, 5.0, 5.0);
         assert!((s - 30.0).abs() < 1e-6 && (d - 1.0).abs() < 1e-9);
         assert!(path.outline().len() < path.points.len() / 2);
+    }
+
+    fn lane(points: Vec<Point>) -> (PieceKey, Vec<Point>, f64) {
+        (PieceKey::Lane(LaneId(0)), points, 10.0)
+    }
+
+    fn rounded(points: Vec<Point>, radius: f64) -> Option<Path> {
+        let profile = SpeedProfile {
+            min_turn_radius_m: radius,
+            ..SpeedProfile::default()
+        };
+        Path::from_geometry(&[lane(points)], profile)
+    }
+
+    /// A 60° corner, as lane graphs join an entry to a ring: rounded off so that nowhere
+    /// does the path turn tighter than the radius (measured over 1.5 m), no point moves more
+    /// than MAX_ROUNDING_M from the mapped line, and the ends stay where they were.
+    #[test]
+    fn a_kink_is_rounded_off_to_the_turn_radius() {
+        let end = Point::new(10.0, 10.0 * 3f64.sqrt());
+        let corner = vec![Point::new(-20.0, 0.0), Point::new(0.0, 0.0), end];
+        let path = rounded(corner.clone(), 5.0).expect("roundable");
+        assert!(
+            path.length() < 40.0 && path.length() > 39.0,
+            "{}",
+            path.length()
+        );
+        let step = (1.5 / path.spacing).round() as usize;
+        for i in step..path.points.len() - step {
+            let turn = wrap_angle(path.headings[i + step] - path.headings[i - step]).abs();
+            let per_m = turn / (2.0 * step as f64 * path.spacing);
+            assert!(per_m < 1.1 / 5.0, "turns {per_m:.3}/m at {i}");
+        }
+        for p in &path.points {
+            let off_mapped = corner
+                .windows(2)
+                .map(|w| closest_on_segment(w[0], w[1], *p).0.distance(*p))
+                .fold(f64::INFINITY, f64::min);
+            assert!(off_mapped <= MAX_ROUNDING_M + 1e-9, "{p:?} {off_mapped}");
+        }
+        assert!(path.pose_at(0.0).0.distance(corner[0]) < 1e-9);
+        assert!(path.pose_at(path.length()).0.distance(end) < 1e-6);
+        assert!((path.pieces()[0].s_end - path.length()).abs() < 1e-9);
+        // Without a radius the mapped corner is kept.
+        let mapped = rounded(corner, 0.0).expect("path");
+        assert!((mapped.length() - 40.0).abs() < 1e-9);
+    }
+
+    /// A U-turn within two metres cannot be rounded to a 5 m radius within MAX_ROUNDING_M:
+    /// no path.
+    #[test]
+    fn a_hairpin_too_tight_to_round_off_is_no_path() {
+        let hairpin = vec![
+            Point::new(-20.0, 0.0),
+            Point::new(0.0, 0.0),
+            Point::new(0.0, 2.0),
+            Point::new(-20.0, 2.0),
+        ];
+        assert!(rounded(hairpin.clone(), 5.0).is_none());
+        assert!(rounded(hairpin, 0.0).is_some());
     }
 }

@@ -28,6 +28,10 @@ pub struct LayoutConfig {
     /// ring's edge, where cars sweeping round would clip a waiting car), m. The line is
     /// moved back along the approach until that holds.
     pub waiting_clearance_m: f64,
+    /// Routes are rounded off where the mapped lanes turn tighter than this radius (see
+    /// [`SpeedProfile::min_turn_radius_m`]); above the ego's own turning circle, so it can
+    /// steer every route, m.
+    pub min_turn_radius_m: f64,
 }
 
 impl Default for LayoutConfig {
@@ -37,6 +41,7 @@ impl Default for LayoutConfig {
             exit_m: 10.0,
             lateral_accel_mps2: 2.5,
             waiting_clearance_m: 0.5,
+            min_turn_radius_m: 5.0,
         }
     }
 }
@@ -73,6 +78,21 @@ pub struct RingRoute {
     pub exit_s: f64,
     /// Ring lanes driven, each with where it starts along the path, in driving order.
     pub ring_lanes: Vec<(LaneId, f64)>,
+    /// Routes from other entries that do not drive this route's merge lane but whose cars
+    /// still touch a car entering here (typically cars leaving the ring at this arm, whose
+    /// exit curve sweeps the entry's mouth): a driver at this yield line waits for them as
+    /// for circulating traffic. See [`EntryConflict`].
+    pub entry_conflicts: Vec<EntryConflict>,
+}
+
+/// Where a car on route `route` touches a car entering on another route: while its centre
+/// is within `from_s..to_s` along its own path, some pose of the entering car between its
+/// yield line and its merge point (centre) overlaps it, heading another way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EntryConflict {
+    pub route: usize,
+    pub from_s: f64,
+    pub to_s: f64,
 }
 
 impl RingRoute {
@@ -120,6 +140,7 @@ impl RoundaboutLayout {
         let exits = arm_lanes(map, &rb.exits);
         let profile = SpeedProfile {
             lateral_accel_mps2: config.lateral_accel_mps2,
+            min_turn_radius_m: config.min_turn_radius_m,
             ..SpeedProfile::default()
         };
         let mut routes = Vec::new();
@@ -146,6 +167,7 @@ impl RoundaboutLayout {
             }
         }
         set_back_yield_points(&mut routes, config.waiting_clearance_m);
+        find_entry_conflicts(&mut routes);
         if routes.is_empty() {
             return Err(SimError::Map(format!(
                 "roundabout {id} has no entry from which an exit can be reached through the ring"
@@ -237,6 +259,64 @@ fn set_back_yield_points(routes: &mut [RingRoute], clearance: f64) {
             s -= SET_BACK_STEP_M;
         }
         route.yield_s = s;
+    }
+}
+
+/// Cars heading within 30° of each other follow one another (car following handles that):
+/// not a conflict.
+const SAME_DIRECTION_COS: f64 = 0.866;
+
+/// Fills every route's [`RingRoute::entry_conflicts`]: the stretches of the routes from other
+/// entries, not driving its merge lane, on which a car touches one entering on it.
+fn find_entry_conflicts(routes: &mut [RingRoute]) {
+    let poses = |r: &RingRoute, from: f64, to: f64| -> Vec<(f64, OrientedBox)> {
+        let n = ((to - from) / SET_BACK_STEP_M).ceil().max(0.0) as usize;
+        (0..=n)
+            .map(|k| {
+                let s = (from + k as f64 * SET_BACK_STEP_M).min(to);
+                let (p, h) = r.path.pose_at(s);
+                (s, OrientedBox::new(p, h, CAR_LENGTH_M, CAR_WIDTH_M))
+            })
+            .collect()
+    };
+    // Every car pose of each route from before its merge point to its end.
+    let swept: Vec<Vec<(f64, OrientedBox)>> = routes
+        .iter()
+        .map(|r| poses(r, (r.merge_s - 3.0).max(0.0), r.path.length()))
+        .collect();
+    let reach = 2.0 * CAR_LENGTH_M.hypot(CAR_WIDTH_M) / 2.0;
+    let conflicts: Vec<Vec<EntryConflict>> = routes
+        .iter()
+        .map(|r| {
+            let half = CAR_LENGTH_M / 2.0;
+            let entering = poses(r, r.yield_s - half, r.merge_s + half);
+            routes
+                .iter()
+                .enumerate()
+                .filter(|(_, q)| q.entry != r.entry && q.ring_lane_start(r.merge_lane).is_none())
+                .filter_map(|(qi, _)| {
+                    let touching = swept[qi].iter().filter(|(_, b)| {
+                        entering.iter().any(|(_, e)| {
+                            e.centre.distance(b.centre) <= reach
+                                && e.axis.dot(b.axis) < SAME_DIRECTION_COS
+                                && e.overlaps(b)
+                        })
+                    });
+                    let (from_s, to_s) = touching
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (s, _)| {
+                            (lo.min(*s), hi.max(*s))
+                        });
+                    (from_s <= to_s).then_some(EntryConflict {
+                        route: qi,
+                        from_s,
+                        to_s,
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    for (r, c) in routes.iter_mut().zip(conflicts) {
+        r.entry_conflicts = c;
     }
 }
 
@@ -348,6 +428,7 @@ fn build_route(
         merge_lane,
         exit_s,
         ring_lanes,
+        entry_conflicts: Vec::new(),
     })
 }
 

@@ -243,6 +243,9 @@ pub struct EgoConfig {
     /// Pure pursuit look-ahead: `lookahead_min_m + lookahead_s * speed`, capped at 8 m.
     pub lookahead_min_m: f64,
     pub lookahead_s: f64,
+    /// Gain on the cross-track error of the world's Stanley controller, which steers the
+    /// ego along its route when no wheel angle is commanded, 1/s.
+    pub stanley_gain: f64,
     pub max_accel_mps2: f64,
     pub max_brake_mps2: f64,
 }
@@ -256,6 +259,7 @@ impl Default for EgoConfig {
             max_steer_rad: 0.6,
             lookahead_min_m: 1.5,
             lookahead_s: 0.3,
+            stanley_gain: 2.0,
             max_accel_mps2: 3.0,
             max_brake_mps2: 8.0,
         }
@@ -582,9 +586,10 @@ impl World {
         let steer = match steer_rad {
             Some(steer) => steer.clamp(-cfg.max_steer_rad, cfg.max_steer_rad),
             None => {
-                let lookahead = (cfg.lookahead_min_m + cfg.lookahead_s * v.speed).min(8.0);
-                let (target, _) = path.pose_at(v.s + lookahead);
-                bike.pure_pursuit(target, cfg.max_steer_rad)
+                let front_hint = v.s + cfg.wheelbase_m / 2.0;
+                let (s_front, _) = path.project(bike.front(), front_hint, 2.0, 2.0);
+                let (point, heading) = path.pose_at(s_front);
+                bike.stanley(point, heading, v.speed, cfg.stanley_gain, cfg.max_steer_rad)
             }
         };
         bike.advance(travelled, steer);
@@ -716,13 +721,25 @@ impl World {
                 }
                 // Along the other's route, from its centre to where it enters the merge lane
                 // (negative once past; the lane may be shorter than a car).
-                let Some(d) = self.layout.routes[o.route]
-                    .ring_lane_start(route.merge_lane)
-                    .map(|start| start - o.s)
-                    .filter(|d| *d < self.config.horizon_m)
+                let Some(start) = self.layout.routes[o.route].ring_lane_start(route.merge_lane)
                 else {
-                    return true;
+                    // Not coming round to the merge lane; it may still sweep the entry's
+                    // mouth (leaving the ring here): wait while it is in or near that zone.
+                    return route
+                        .entry_conflicts
+                        .iter()
+                        .find(|c| c.route == o.route)
+                        .is_none_or(|c| {
+                            o.s > c.to_s
+                                || (o.s < c.from_s
+                                    && (c.from_s - o.s) / o.speed.max(2.0)
+                                        > my_time + v.driver.critical_gap_s)
+                        });
                 };
+                let d = start - o.s;
+                if d >= self.config.horizon_m {
+                    return true;
+                }
                 // Front of the other vehicle to the merge point; negative while it straddles it.
                 let front_to_merge = d - o.length / 2.0;
                 if d <= 0.0 && d > -o.length {

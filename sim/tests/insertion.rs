@@ -60,7 +60,8 @@ fn same_seed_gives_the_same_first_1000_steps() {
     let b = run(&setup, 12);
     assert_ne!(a.0, b.0);
     assert!(
-        a.1.iter().filter(|o| o.is_some()).count() >= 3,
+        // Episodes last at most 40 s (400 steps) on this roundabout.
+        a.1.iter().filter(|o| o.is_some()).count() >= 2,
         "expected several episodes in 1000 steps"
     );
 }

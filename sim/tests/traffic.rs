@@ -2,7 +2,7 @@
 //! into a mini roundabout) and on the shared real maps when present.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stderr)]
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 use sim::roundabout::{LayoutConfig, RoundaboutLayout};
@@ -183,6 +183,63 @@ fn gap_acceptance_waits_for_a_near_circulating_car() {
         "entered in front of a car 2.5 s away"
     );
     assert!(committed_after, "never entered after the car had passed");
+}
+
+/// On montlake, cars leaving the ring sweep the mouths of entries at their arm. A driver
+/// waiting there does not go while such a car is in the swept stretch (it would drive into
+/// its side), and goes once the car has left it.
+#[test]
+fn a_waiting_driver_lets_a_car_leaving_at_its_arm_clear_the_mouth() {
+    let layout = montlake_layout();
+    let entries_swept_by_leaving_cars: BTreeSet<usize> = layout
+        .routes
+        .iter()
+        .filter(|r| {
+            r.entry_conflicts.iter().any(|c| {
+                let q = &layout.routes[c.route];
+                layout.exits[q.exit].road == layout.entries[r.entry].road
+            })
+        })
+        .map(|r| r.entry)
+        .collect();
+    assert!(
+        entries_swept_by_leaving_cars.len() >= 2,
+        "{entries_swept_by_leaving_cars:?}"
+    );
+    let config = TrafficConfig {
+        arrivals_per_s: 0.0,
+        ..TrafficConfig::default()
+    };
+    let (waiting, conflict) = layout
+        .routes
+        .iter()
+        .enumerate()
+        .find_map(|(w, wr)| wr.entry_conflicts.first().map(|c| (w, *c)))
+        .expect("a route with an entry conflict");
+    let wr = &layout.routes[waiting];
+    let mut world = World::new(Arc::clone(&layout), config, EgoConfig::default(), 1);
+    let w = world.insert_vehicle(waiting, wr.yield_s - 2.5, 0.0, 0.5, false);
+    // The leaving car starts 6 m before the swept stretch at 4 m/s.
+    let c = world.insert_vehicle(conflict.route, conflict.from_s - 6.0, 4.0, 0.5, true);
+    let (mut committed_while_near, mut committed_after) = (false, false);
+    for _ in 0..150 {
+        world.step(0.0);
+        let Some(waiting_car) = world.vehicles().iter().find(|v| v.id == w) else {
+            break;
+        };
+        let leaving = world.vehicles().iter().find(|v| v.id == c);
+        let cleared = leaving.is_none_or(|v| v.s > conflict.to_s);
+        committed_while_near |= waiting_car.committed && !cleared;
+        committed_after |= waiting_car.committed && cleared;
+    }
+    assert!(
+        !committed_while_near,
+        "entered while a leaving car swept the mouth"
+    );
+    assert!(
+        committed_after,
+        "never entered after the leaving car had gone"
+    );
 }
 
 /// The world builds routes on every shared roundabout map and moves traffic through it.

@@ -130,7 +130,7 @@ impl Default for InsertionConfig {
             observation: BevConfig::default(),
             reward: RewardConfig::default(),
             aggressiveness: None,
-            time_limit_s: 20.0,
+            time_limit_s: 40.0,
             time_limit_factor: 2.0,
             start_distance_m: 20.0,
             start_speed_fraction: (0.3, 0.8),
