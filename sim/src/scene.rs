@@ -88,6 +88,13 @@ impl OrientedBox {
             .all(|&d| t.dot(d).abs() <= self.radius_along(d) + other.radius_along(d))
     }
 
+    /// Whether `p` lies inside the box (or on its edge).
+    pub fn contains(&self, p: Point) -> bool {
+        let d = p.sub(self.centre);
+        d.dot(self.axis).abs() <= self.half_length
+            && d.dot(self.axis.perp()).abs() <= self.half_width
+    }
+
     /// Radius of the circle around the centre that holds the box.
     pub fn bounding_radius(&self) -> f64 {
         self.half_length.hypot(self.half_width)

@@ -646,6 +646,49 @@ impl World {
         self.nearest_ahead(i, true)
     }
 
+    /// The nearest other vehicle whose footprint lies on vehicle `i`'s path within
+    /// `horizon_m` ahead of its front, heading within 75° of the path there: a car leaving
+    /// the ring just ahead whose rear still covers the lane, which [`World::leader`] no
+    /// longer finds once that car is on its exit piece. The gap runs from `i`'s front to
+    /// the first sampled point of the path (every 0.5 m) inside the footprint, grown by
+    /// half of `i`'s width.
+    pub fn obstacle_on_path(&self, i: usize, horizon_m: f64) -> Option<Leader> {
+        const STEP_M: f64 = 0.5;
+        let me = &self.vehicles[i];
+        let path = &self.layout.routes[me.route].path;
+        let front = me.front_s();
+        let reach = horizon_m + me.length + 5.0;
+        let mut best: Option<Leader> = None;
+        for (j, other) in self.vehicles.iter().enumerate() {
+            if j == i || other.position.distance(me.position) > reach {
+                continue;
+            }
+            let zone = OrientedBox::new(
+                other.position,
+                other.heading,
+                other.length + me.width,
+                other.width + me.width,
+            );
+            let steps = (horizon_m / STEP_M).ceil() as usize;
+            let hit = (0..=steps).map(|k| k as f64 * STEP_M).find(|&ahead| {
+                let (p, heading) = path.pose_at(front + ahead);
+                zone.contains(p)
+                    && crate::path::wrap_angle(other.heading - heading).abs() < 75f64.to_radians()
+            });
+            if let Some(gap) = hit
+                && best.is_none_or(|b| gap < b.gap_m)
+            {
+                best = Some(Leader {
+                    index: j,
+                    gap_m: gap,
+                    closing_mps: me.speed - other.speed,
+                    merging: false,
+                });
+            }
+        }
+        best
+    }
+
     fn nearest_ahead(&self, i: usize, merging: bool) -> Option<Leader> {
         let me = &self.vehicles[i];
         let mut best: Option<Leader> = None;

@@ -8,7 +8,8 @@
 //!   following distance to a vehicle ahead on its own path (not to vehicles coming round
 //!   the ring: whether to go in front of those is the decision being learned), and once
 //!   it has entered it brakes for a vehicle merging ahead of it from a later entry, as the
-//!   world's other drivers do.
+//!   world's other drivers do, and under every action for a car whose body covers its path
+//!   within 12 m ahead (one leaving the ring in front of it).
 //! - Reward per step: `r_danger + r_terminal + r_indecision + r_speed`, see
 //!   [`RewardConfig`]; σ = 1 − aggressiveness.
 //! - Termination: Reached (the ego's centre passes a point `goal_past_exit_m` into its exit
@@ -142,6 +143,9 @@ impl Default for InsertionConfig {
         }
     }
 }
+
+/// How far ahead of its front the ego looks for cars covering its path, m.
+const OBSTACLE_HORIZON_M: f64 = 12.0;
 
 /// Number of scalar inputs: speed, target speed, aggressiveness, last action (one-hot).
 pub const SCALARS: usize = 3 + Action::ALL.len();
@@ -478,6 +482,14 @@ impl RoundaboutInsertion {
                 .follower
                 .idm(v, target.max(0.1), Some((m.gap_m, m.closing_mps)));
             follow = follow.min(cut_in.max(-self.follower.merge_brake_mps2));
+        }
+        // A car just ahead whose body still covers the ego's path (leaving the ring, or
+        // crossing it) is braked for whatever the action.
+        if let Some(o) = world.obstacle_on_path(ego, OBSTACLE_HORIZON_M) {
+            let obstacle = self
+                .follower
+                .idm(v, target.max(0.1), Some((o.gap_m, o.closing_mps)));
+            follow = follow.min(obstacle);
         }
         chosen.min(follow)
     }
