@@ -86,6 +86,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 continue;
             }
             let or = world.route(o);
+            if std::env::var("DEBUG_LEADER").is_ok() {
+                let ep = er.path.pieces()[ego.piece];
+                let op = or.path.pieces()[o.piece];
+                println!(
+                    "  other's leader {:?}; ego piece {:?} at {:.1} of [{:.1}, {:.1}]; other piece {:?} at {:.1} of [{:.1}, {:.1}]",
+                    world.leader(j),
+                    ep.key,
+                    ego.s,
+                    ep.s_start,
+                    ep.s_end,
+                    op.key,
+                    o.s,
+                    op.s_start,
+                    op.s_end
+                );
+            }
             let (on_path, _) = er.path.pose_at(ego.s);
             let off = ((on_path.x - ego.position.x).powi(2) + (on_path.y - ego.position.y).powi(2))
                 .sqrt();

@@ -32,6 +32,9 @@ use crate::roundabout::{RingRoute, RoundaboutLayout};
 use crate::scene::{Actor, ActorKind, OrientedBox};
 use crate::spatial::UniformGrid;
 
+/// How far ahead other drivers look for cars covering their path, m.
+const OTHERS_OBSTACLE_HORIZON_M: f64 = 8.0;
+
 /// Traffic density, as in the Parma study: at most 4 / 6 / 8 other vehicles in the
 /// roundabout (its approaches, ring and exits) at once.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -659,8 +662,11 @@ impl World {
         let front = me.front_s();
         let reach = horizon_m + me.length + 5.0;
         let mut best: Option<Leader> = None;
+        let forward = crate::kinematics::direction(me.heading);
         for (j, other) in self.vehicles.iter().enumerate() {
-            if j == i || other.position.distance(me.position) > reach {
+            let offset = other.position.sub(me.position);
+            // Only cars near and not behind (the path ahead may curve, hence the margin).
+            if j == i || offset.norm() > reach || offset.dot(forward) < -other.length {
                 continue;
             }
             let zone = OrientedBox::new(
@@ -822,6 +828,13 @@ impl World {
         {
             let cut_in = v.driver.idm(v.speed, v0, Some((m.gap_m, m.closing_mps)));
             a = a.min(cut_in.max(-v.driver.merge_brake_mps2));
+        }
+        // A car whose body still covers the path just ahead (leaving the ring in front, the
+        // ego off its line) is braked for as well: it is no leader once on its exit piece.
+        if v.committed
+            && let Some(o) = self.obstacle_on_path(i, OTHERS_OBSTACLE_HORIZON_M)
+        {
+            a = a.min(v.driver.idm(v.speed, v0, Some((o.gap_m, o.closing_mps))));
         }
         if !v.committed {
             let to_line = route.yield_s - v.front_s();
