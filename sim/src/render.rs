@@ -184,6 +184,27 @@ impl MapRaster {
         &self.spec
     }
 
+    /// Marks a corridor `width_m` wide along `line` navigable: routes rounded off where the
+    /// mapped lanes kink may leave the mapped lane area by a little, and are driven there.
+    pub fn mark_navigable(&mut self, line: &[Point], width_m: f64) {
+        let (w, h) = (self.spec.width as usize, self.spec.height as usize);
+        let pts: Vec<(f64, f64)> = line.iter().map(|p| map_pixel(&self.spec, *p)).collect();
+        let mut corridor = vec![0u8; self.bits.len()];
+        stroke(
+            &mut corridor,
+            w,
+            h,
+            &pts,
+            width_m / self.spec.resolution_m,
+            1,
+        );
+        for (b, c) in self.bits.iter_mut().zip(&corridor) {
+            if *c != 0 {
+                *b |= NAVIGABLE_BIT;
+            }
+        }
+    }
+
     fn bits_at(&self, p: Point) -> u8 {
         let (x, y) = map_pixel(&self.spec, p);
         if x >= 0.0 && y >= 0.0 && x < f64::from(self.spec.width) && y < f64::from(self.spec.height)
@@ -278,6 +299,20 @@ impl BevRenderer {
             config,
             raster: std::sync::Arc::new(raster),
         })
+    }
+
+    /// This renderer with a navigable corridor `width_m` wide along each of `lines` (see
+    /// [`MapRaster::mark_navigable`]).
+    pub fn with_navigable_corridors<'a>(
+        mut self,
+        lines: impl IntoIterator<Item = &'a [Point]>,
+        width_m: f64,
+    ) -> Self {
+        let raster = std::sync::Arc::make_mut(&mut self.raster);
+        for line in lines {
+            raster.mark_navigable(line, width_m);
+        }
+        self
     }
 
     /// A renderer sharing another's map raster, with a different layer choice or stack

@@ -14,6 +14,9 @@ use crate::roundabout::{LayoutConfig, RoundaboutLayout};
 use crate::scene::Scene;
 use crate::world::World;
 
+/// Width of the navigable corridor along every route, m (a wide car).
+const ROUTE_CORRIDOR_M: f64 = 2.0;
+
 /// Every roundabout of a map that has a route from an entry through the ring to an exit,
 /// with the bird's-eye renderer of its region (read-only, shared by every environment).
 #[derive(Debug)]
@@ -30,7 +33,13 @@ impl RoundaboutSet {
         for id in map.roundabouts.keys() {
             match RoundaboutLayout::new(&map, *id, layout) {
                 Ok(layout) => {
-                    let renderer = BevRenderer::new(&map, layout.bounds, view.clone())?;
+                    // Routes rounded off at kinks may graze the mapped lanes' edges: a car's
+                    // width along every route is navigable.
+                    let renderer = BevRenderer::new(&map, layout.bounds, view.clone())?
+                        .with_navigable_corridors(
+                            layout.routes.iter().map(|r| r.path.outline()),
+                            ROUTE_CORRIDOR_M,
+                        );
                     roundabouts.push((Arc::new(layout), renderer));
                 }
                 Err(e) => problems.push(e.to_string()),
