@@ -238,8 +238,7 @@ impl Path {
             let rounding = round_off_kinks(&mut line, profile.min_turn_radius_m);
             if rounding == Rounding::TooTight {
                 return None;
-            }
-            if rounding == Rounding::Rounded {
+            } else if rounding == Rounding::Rounded {
                 // The rounded line is shorter: measure the pieces on it, and sample it again.
                 let old_spacing = length / (samples.len() - 1) as f64;
                 let along = cumulative_lengths(&line);

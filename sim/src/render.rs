@@ -184,21 +184,28 @@ impl MapRaster {
         &self.spec
     }
 
-    /// Marks a corridor `width_m` wide along `line` navigable: routes rounded off where the
-    /// mapped lanes kink may leave the mapped lane area by a little, and are driven there.
-    pub fn mark_navigable(&mut self, line: &[Point], width_m: f64) {
+    /// Marks a corridor `width_m` wide along each of `lines` navigable: routes rounded off
+    /// where the mapped lanes kink may leave the mapped lane area by a little, and are
+    /// driven there.
+    pub fn mark_navigable<'a>(
+        &mut self,
+        lines: impl IntoIterator<Item = &'a [Point]>,
+        width_m: f64,
+    ) {
         let (w, h) = (self.spec.width as usize, self.spec.height as usize);
-        let pts: Vec<(f64, f64)> = line.iter().map(|p| map_pixel(&self.spec, *p)).collect();
-        let mut corridor = vec![0u8; self.bits.len()];
-        stroke(
-            &mut corridor,
-            w,
-            h,
-            &pts,
-            width_m / self.spec.resolution_m,
-            1,
-        );
-        for (b, c) in self.bits.iter_mut().zip(&corridor) {
+        let mut corridors = vec![0u8; self.bits.len()];
+        for line in lines {
+            let pts: Vec<(f64, f64)> = line.iter().map(|p| map_pixel(&self.spec, *p)).collect();
+            stroke(
+                &mut corridors,
+                w,
+                h,
+                &pts,
+                width_m / self.spec.resolution_m,
+                1,
+            );
+        }
+        for (b, c) in self.bits.iter_mut().zip(&corridors) {
             if *c != 0 {
                 *b |= NAVIGABLE_BIT;
             }
@@ -308,10 +315,7 @@ impl BevRenderer {
         lines: impl IntoIterator<Item = &'a [Point]>,
         width_m: f64,
     ) -> Self {
-        let raster = std::sync::Arc::make_mut(&mut self.raster);
-        for line in lines {
-            raster.mark_navigable(line, width_m);
-        }
+        std::sync::Arc::make_mut(&mut self.raster).mark_navigable(lines, width_m);
         self
     }
 

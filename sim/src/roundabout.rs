@@ -226,14 +226,8 @@ fn set_back_yield_points(routes: &mut [RingRoute], clearance: f64) {
     let swept: Vec<(usize, Vec<OrientedBox>)> = routes
         .iter()
         .map(|r| {
-            let (from, to) = (r.merge_s - 3.0, (r.exit_s + 10.0).min(r.path.length()));
-            let n = ((to - from) / SET_BACK_STEP_M).ceil().max(0.0) as usize;
-            let boxes = (0..=n)
-                .map(|k| {
-                    let (p, h) = r.path.pose_at(from + k as f64 * SET_BACK_STEP_M);
-                    OrientedBox::new(p, h, CAR_LENGTH_M, CAR_WIDTH_M)
-                })
-                .collect();
+            let to = (r.exit_s + 10.0).min(r.path.length());
+            let boxes = car_poses(r, r.merge_s - 3.0, to).map(|(_, b)| b).collect();
             (r.entry, boxes)
         })
         .collect();
@@ -262,6 +256,17 @@ fn set_back_yield_points(routes: &mut [RingRoute], clearance: f64) {
     }
 }
 
+/// The footprints of the largest car along `r` with its centre every [`SET_BACK_STEP_M`]
+/// from `from` to `to`, with the arc length of each.
+fn car_poses(r: &RingRoute, from: f64, to: f64) -> impl Iterator<Item = (f64, OrientedBox)> + '_ {
+    let n = ((to - from) / SET_BACK_STEP_M).ceil().max(0.0) as usize;
+    (0..=n).map(move |k| {
+        let s = (from + k as f64 * SET_BACK_STEP_M).min(to);
+        let (p, h) = r.path.pose_at(s);
+        (s, OrientedBox::new(p, h, CAR_LENGTH_M, CAR_WIDTH_M))
+    })
+}
+
 /// Cars heading within 30° of each other follow one another (car following handles that):
 /// not a conflict.
 const SAME_DIRECTION_COS: f64 = 0.866;
@@ -269,27 +274,18 @@ const SAME_DIRECTION_COS: f64 = 0.866;
 /// Fills every route's [`RingRoute::entry_conflicts`]: the stretches of the routes from other
 /// entries, not driving its merge lane, on which a car touches one entering on it.
 fn find_entry_conflicts(routes: &mut [RingRoute]) {
-    let poses = |r: &RingRoute, from: f64, to: f64| -> Vec<(f64, OrientedBox)> {
-        let n = ((to - from) / SET_BACK_STEP_M).ceil().max(0.0) as usize;
-        (0..=n)
-            .map(|k| {
-                let s = (from + k as f64 * SET_BACK_STEP_M).min(to);
-                let (p, h) = r.path.pose_at(s);
-                (s, OrientedBox::new(p, h, CAR_LENGTH_M, CAR_WIDTH_M))
-            })
-            .collect()
-    };
     // Every car pose of each route from before its merge point to its end.
     let swept: Vec<Vec<(f64, OrientedBox)>> = routes
         .iter()
-        .map(|r| poses(r, (r.merge_s - 3.0).max(0.0), r.path.length()))
+        .map(|r| car_poses(r, (r.merge_s - 3.0).max(0.0), r.path.length()).collect())
         .collect();
-    let reach = 2.0 * CAR_LENGTH_M.hypot(CAR_WIDTH_M) / 2.0;
+    // Centres farther apart than this cannot overlap.
+    let reach = CAR_LENGTH_M.hypot(CAR_WIDTH_M);
     let conflicts: Vec<Vec<EntryConflict>> = routes
         .iter()
         .map(|r| {
             let half = CAR_LENGTH_M / 2.0;
-            let entering = poses(r, r.yield_s - half, r.merge_s + half);
+            let entering: Vec<_> = car_poses(r, r.yield_s - half, r.merge_s + half).collect();
             routes
                 .iter()
                 .enumerate()

@@ -243,7 +243,8 @@ pub struct EgoConfig {
     pub width_m: f64,
     pub wheelbase_m: f64,
     pub max_steer_rad: f64,
-    /// Pure pursuit look-ahead: `lookahead_min_m + lookahead_s * speed`, capped at 8 m.
+    /// Pure pursuit look-ahead of the roundabout-driving task's rule (the world steers the
+    /// ego with Stanley): `lookahead_min_m + lookahead_s * speed`, capped at 8 m.
     pub lookahead_min_m: f64,
     pub lookahead_s: f64,
     /// Gain on the cross-track error of the world's Stanley controller, which steers the
@@ -660,9 +661,17 @@ impl World {
         let me = &self.vehicles[i];
         let path = &self.layout.routes[me.route].path;
         let front = me.front_s();
+        // The path ahead, sampled once: (distance from the front, point, heading).
+        let ahead: Vec<(f64, Point, f64)> = (0..=(horizon_m / STEP_M).ceil() as usize)
+            .map(|k| {
+                let d = k as f64 * STEP_M;
+                let (p, heading) = path.pose_at(front + d);
+                (d, p, heading)
+            })
+            .collect();
         let reach = horizon_m + me.length + 5.0;
-        let mut best: Option<Leader> = None;
         let forward = crate::kinematics::direction(me.heading);
+        let mut best: Option<Leader> = None;
         for (j, other) in self.vehicles.iter().enumerate() {
             let offset = other.position.sub(me.position);
             // Only cars near and not behind (the path ahead may curve, hence the margin).
@@ -675,11 +684,10 @@ impl World {
                 other.length + me.width,
                 other.width + me.width,
             );
-            let steps = (horizon_m / STEP_M).ceil() as usize;
-            let hit = (0..=steps).map(|k| k as f64 * STEP_M).find(|&ahead| {
-                let (p, heading) = path.pose_at(front + ahead);
-                zone.contains(p)
-                    && crate::path::wrap_angle(other.heading - heading).abs() < 75f64.to_radians()
+            let hit = ahead.iter().find_map(|&(d, p, heading)| {
+                (zone.contains(p)
+                    && crate::path::wrap_angle(other.heading - heading).abs() < 75f64.to_radians())
+                .then_some(d)
             });
             if let Some(gap) = hit
                 && best.is_none_or(|b| gap < b.gap_m)
