@@ -178,24 +178,16 @@ impl TransverseMercator {
         let t = (phi.sin().atanh() - self.e * (self.e * phi.sin()).atanh()).sinh();
         let xi_p = t.atan2(lam.cos());
         let eta_p = (lam.sin() / (1.0 + t * t).sqrt()).atanh();
-        let (mut xi, mut eta) = (xi_p, eta_p);
-        for (j, a) in self.alpha.iter().enumerate() {
-            let k = 2.0 * (j as f64 + 1.0);
-            xi += a * (k * xi_p).sin() * (k * eta_p).cosh();
-            eta += a * (k * xi_p).cos() * (k * eta_p).sinh();
-        }
+        let (d_xi, d_eta) = kruger_sum(&self.alpha, xi_p, eta_p);
+        let (xi, eta) = (xi_p + d_xi, eta_p + d_eta);
         (self.false_easting + self.a_hat * eta, self.a_hat * xi)
     }
 
     fn inverse(&self, x: f64, y: f64) -> (f64, f64) {
         let xi = y / self.a_hat;
         let eta = (x - self.false_easting) / self.a_hat;
-        let (mut xi_p, mut eta_p) = (xi, eta);
-        for (j, b) in self.beta.iter().enumerate() {
-            let k = 2.0 * (j as f64 + 1.0);
-            xi_p -= b * (k * xi).sin() * (k * eta).cosh();
-            eta_p -= b * (k * xi).cos() * (k * eta).sinh();
-        }
+        let (d_xi, d_eta) = kruger_sum(&self.beta, xi, eta);
+        let (xi_p, eta_p) = (xi - d_xi, eta - d_eta);
         let chi = (xi_p.sin() / eta_p.cosh()).asin();
         let lam = eta_p.sinh().atan2(xi_p.cos());
         // Latitude from conformal latitude by Newton iteration on tau = tan(phi).
@@ -216,10 +208,60 @@ impl TransverseMercator {
     }
 }
 
+/// The Krüger series term Σ_j c_j sin(2j ζ) for ζ = ξ + iη, as (real, imaginary) parts:
+/// (Σ c_j sin 2jξ cosh 2jη, Σ c_j cos 2jξ sinh 2jη).
+///
+/// The multiples come from the recurrence sin((j+1)w) = 2 cos(w) sin(jw) − sin((j−1)w) in
+/// complex arithmetic, w = 2ζ: four transcendental calls per point instead of four per term,
+/// which is most of the cost of projecting a map's points for its GeoJSON.
+fn kruger_sum(c: &[f64; 6], xi: f64, eta: f64) -> (f64, f64) {
+    let (s, co) = (2.0 * xi).sin_cos();
+    let (sh, ch) = ((2.0 * eta).sinh(), (2.0 * eta).cosh());
+    // sin(w) and cos(w) for complex w = 2ξ + 2iη.
+    let sin_w = (s * ch, co * sh);
+    let cos_w = (co * ch, -s * sh);
+    let mul = |a: (f64, f64), b: (f64, f64)| (a.0 * b.0 - a.1 * b.1, a.0 * b.1 + a.1 * b.0);
+    let (mut prev, mut cur) = ((0.0, 0.0), sin_w);
+    let mut sum = (0.0, 0.0);
+    for &cj in c {
+        sum.0 += cj * cur.0;
+        sum.1 += cj * cur.1;
+        let twice = mul(cos_w, cur);
+        let next = (2.0 * twice.0 - prev.0, 2.0 * twice.1 - prev.1);
+        prev = cur;
+        cur = next;
+    }
+    sum
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn kruger_sum_matches_the_terms_evaluated_one_by_one() {
+        let tm = TransverseMercator::new(3.0, 0.9996);
+        for &(xi, eta) in &[
+            (0.0, 0.0),
+            (0.7, 0.05),
+            (-1.2, -0.1),
+            (0.3, 0.6),
+            (1.5, 0.001),
+        ] {
+            let (mut re, mut im) = (0.0, 0.0);
+            for (j, b) in tm.beta.iter().enumerate() {
+                let k = 2.0 * (j as f64 + 1.0);
+                re += b * (k * xi).sin() * (k * eta).cosh();
+                im += b * (k * xi).cos() * (k * eta).sinh();
+            }
+            let (r, i) = kruger_sum(&tm.beta, xi, eta);
+            assert!(
+                (r - re).abs() < 1e-17 && (i - im).abs() < 1e-17,
+                "({xi}, {eta}): {r} {i} against {re} {im}"
+            );
+        }
+    }
 
     #[test]
     fn utm_zone_31_matches_interaction_convention() {

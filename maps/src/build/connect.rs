@@ -63,60 +63,70 @@ impl Builder<'_> {
     /// turns from the outer lanes, far-side turns from the inner lanes, straight on lane by
     /// lane; `turn:lanes` narrows the choice where tagged.
     pub fn connect_lanes(&mut self) {
-        let junction_ids: Vec<(JunctionId, JunctionKind)> = self
+        use rayon::prelude::*;
+        let junctions: Vec<(JunctionId, JunctionKind)> = self
             .map
             .junctions
             .values()
             .map(|j| (j.id, j.kind))
             .collect();
-        let mut next = 0u32;
-        for (j, kind) in junction_ids {
-            let incoming = self.approaches(j, true);
-            let outgoing = self.approaches(j, false);
-            for a in &incoming {
-                for b in &outgoing {
-                    let u_turn = a.road == b.road && a.direction != b.direction;
-                    if u_turn {
-                        let allowed = match self.options.u_turns {
-                            UTurns::Never => false,
-                            UTurns::DeadEnds => kind == JunctionKind::DeadEnd,
-                            UTurns::Everywhere => true,
-                        };
-                        if !allowed {
-                            continue;
-                        }
-                    }
-                    if a.road == b.road && a.direction == b.direction {
+        // Each junction's movements depend only on the lanes, so they are found on every
+        // core; ids are then given in junction order, the same whatever the thread count.
+        let per_junction: Vec<Vec<Connection>> = junctions
+            .par_iter()
+            .map(|&(j, kind)| self.junction_connections(j, kind))
+            .collect();
+        for (mut connection, next) in per_junction.into_iter().flatten().zip(0u32..) {
+            connection.id = ConnectionId(next);
+            self.map.connections.insert(connection.id, connection);
+        }
+    }
+
+    /// The connections through one junction, in the order of its incoming and outgoing lane
+    /// groups; their ids are placeholders.
+    fn junction_connections(&self, j: JunctionId, kind: JunctionKind) -> Vec<Connection> {
+        let incoming = self.approaches(j, true);
+        let outgoing = self.approaches(j, false);
+        let mut connections = Vec::new();
+        for a in &incoming {
+            for b in &outgoing {
+                let u_turn = a.road == b.road && a.direction != b.direction;
+                if u_turn {
+                    let allowed = match self.options.u_turns {
+                        UTurns::Never => false,
+                        UTurns::DeadEnds => kind == JunctionKind::DeadEnd,
+                        UTurns::Everywhere => true,
+                    };
+                    if !allowed {
                         continue;
                     }
-                    let turn = if u_turn {
-                        Turn::UTurn
-                    } else if kind == JunctionKind::Continuation {
-                        Turn::Straight
-                    } else {
-                        classify(a.heading, b.heading, self.map.driving_side)
-                    };
-                    for (from, to) in self.lane_pairs(a, b, turn) {
-                        let id = ConnectionId(next);
-                        next += 1;
-                        let centre = self.connection_curve(from, to);
-                        let length = polyline_length(&centre);
-                        self.map.connections.insert(
-                            id,
-                            Connection {
-                                id,
-                                junction: j,
-                                from,
-                                to,
-                                turn,
-                                centre,
-                                length_m: length,
-                            },
-                        );
-                    }
+                }
+                if a.road == b.road && a.direction == b.direction {
+                    continue;
+                }
+                let turn = if u_turn {
+                    Turn::UTurn
+                } else if kind == JunctionKind::Continuation {
+                    Turn::Straight
+                } else {
+                    classify(a.heading, b.heading, self.map.driving_side)
+                };
+                for (from, to) in self.lane_pairs(a, b, turn) {
+                    let centre = self.connection_curve(from, to);
+                    let length_m = polyline_length(&centre);
+                    connections.push(Connection {
+                        id: ConnectionId(0),
+                        junction: j,
+                        from,
+                        to,
+                        turn,
+                        centre,
+                        length_m,
+                    });
                 }
             }
         }
+        connections
     }
 
     /// Which lanes of `a` feed which lanes of `b` for a movement of kind `turn`.

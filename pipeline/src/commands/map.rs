@@ -285,10 +285,22 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         "building the map (profile {})",
         options.profile.name
     ));
-    // The reader parses on every core but the build runs on one: hash the input for
-    // summary.json on another core meanwhile.
-    let (built, hashed) = rayon::join(|| maps::import_osm(&osm, options), || sha256_file(input));
+    // The reader parses on every core but the build mostly runs on one: meanwhile, another
+    // core hashes the input for summary.json and prepares the output folder and the
+    // recording (whose sink starts threads). If the build fails, dropping them removes the
+    // folder, recording included.
+    let prepare_outputs = || -> Result<_> {
+        let hashed = sha256_file(input)?;
+        let dir = AtomicDir::create(&out, IMPORT_MARKERS)?;
+        let rec = match ctx.cli.rerun {
+            RerunMode::Off => None,
+            _ => Some(ctx.open_recording(Some(dir.path()))?),
+        };
+        Ok((hashed, dir, rec))
+    };
+    let (built, prepared) = rayon::join(|| maps::import_osm(&osm, options), prepare_outputs);
     let map = built.map_err(|e| map_error(input, e, FileRole::OsmInput))?;
+    let ((bytes, sha256), dir, rec) = prepared?;
     // Freeing the parsed OSM data (hundreds of thousands of small allocations) costs more
     // than the rest of the import's bookkeeping; the process ends right after the import.
     std::mem::forget(osm);
@@ -300,7 +312,6 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         )
         .into());
     }
-    let (bytes, sha256) = hashed?;
     let summary = maps::summary::summarize(&map);
     let input_info = InputInfo {
         file: input
@@ -321,16 +332,14 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
     };
 
     progress.step(&format!("writing {}", out.display()));
-    let dir = AtomicDir::create(&out, IMPORT_MARKERS)?;
     // The recording is independent of the files: log it while they are encoded. It is
     // finished (flushed, closed) before the rename, so the .rrd is complete when the folder appears.
     let (written, recorded) = rayon::join(
         || write_outputs(dir.path(), &map, &summary, &input_info, record),
         || -> Result<()> {
-            if ctx.cli.rerun == RerunMode::Off {
+            let Some(rec) = rec else {
                 return Ok(());
-            }
-            let rec = ctx.open_recording(Some(dir.path()))?;
+            };
             if let Some(stream) = rec.stream() {
                 recording::log_map(stream, &map)?;
             }
