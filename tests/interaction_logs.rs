@@ -393,6 +393,26 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         "--offline learns roundabout insertion",
         &tmp.path().join("bad"),
     );
+
+    // Logs cannot give the rule inputs: a task that asks for them is refused.
+    let rule_config = tmp.path().join("rule_inputs.toml");
+    std::fs::write(&rule_config, "[agent.task]\nrule_inputs = true\n").unwrap();
+    let out = pipeline()
+        .args(["--rerun", "off", "--config"])
+        .arg(&rule_config)
+        .args(["agent", "train", "--offline", "--map"])
+        .arg(&map)
+        .arg("--log")
+        .arg(&log)
+        .arg("--out")
+        .arg(tmp.path().join("bad"))
+        .output()
+        .unwrap();
+    assert_refused(
+        &out,
+        "`rule_inputs = true`, which projected logs cannot give",
+        &tmp.path().join("bad"),
+    );
 }
 
 /// Topic roles (issue 7): detected on the Husky drive (odometry and GPS, no objects), a

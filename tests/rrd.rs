@@ -6,8 +6,6 @@
 
 mod common;
 
-use std::path::Path;
-
 use common::*;
 
 #[test]
@@ -18,7 +16,9 @@ fn recording_is_readable_by_rerun_and_shows_the_map() {
     };
     let tmp = tempfile::tempdir().unwrap();
     // Real data when present (a roundabout and stop lines), the small cross otherwise.
-    let input = match osm_file("montlake_roundabout.osm.pbf") {
+    let montlake = osm_file("montlake_roundabout.osm.pbf");
+    let on_montlake = montlake.is_some();
+    let input = match montlake {
         Some(p) => p,
         None => {
             let p = tmp.path().join("cross.osm");
@@ -68,13 +68,19 @@ fn recording_is_readable_by_rerun_and_shows_the_map() {
             "`{entity}` missing from rerun rrd print:\n{text}"
         );
     }
-    if text.contains("montlake") || input_has_roundabout(&out) {
-        assert!(text.contains("world/map/roundabouts"), "{text}");
+    let summary = read_json(&out.join("summary.json"));
+    if on_montlake {
+        // Its ring and five give-way lines: the checks below must not pass vacuously.
+        assert_eq!(summary["roundabouts"].as_array().map(Vec::len), Some(1));
+        assert_eq!(summary["stop_lines"]["total"].as_u64(), Some(5));
     }
-}
-
-fn input_has_roundabout(out: &Path) -> bool {
-    read_json(&out.join("summary.json"))["roundabouts"]
+    if summary["roundabouts"]
         .as_array()
         .is_some_and(|r| !r.is_empty())
+    {
+        assert!(text.contains("world/map/roundabouts"), "{text}");
+    }
+    if summary["stop_lines"]["total"].as_u64().unwrap_or(0) > 0 {
+        assert!(text.contains("world/map/stop_lines"), "{text}");
+    }
 }

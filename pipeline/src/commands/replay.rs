@@ -37,7 +37,7 @@ use models::dqn::{greedy_action, load_network, read_agent_description};
 use models::policy::QPolicy;
 use serde::{Deserialize, Serialize};
 use sim::render::{BevConfig, BevRenderer, FrameStack};
-use sim::tasks::insertion::{Action, observation_scalars, observation_spec};
+use sim::tasks::insertion::{Action, InsertionConfig, observation_scalars, observation_spec};
 use sim::{Observation, ObservationSpec};
 
 use super::Context;
@@ -508,6 +508,19 @@ impl Views {
     }
 }
 
+/// Projected logs give the bird's-eye layers and the speed, not the rule inputs
+/// ([`InsertionConfig::rule_inputs`]): one clear error for a task that asks for them.
+pub(crate) fn refuse_rule_inputs(config: &InsertionConfig, whose: &str) -> Result<()> {
+    if config.rule_inputs {
+        return Err(CliError::new(
+            format!("{whose} has `rule_inputs = true`, which projected logs cannot give"),
+            "use a task without rule inputs (the default) for logs",
+        )
+        .into());
+    }
+    Ok(())
+}
+
 /// A log read into frames, with its approaches.
 pub(crate) struct ReplayLog {
     pub(crate) name: String,
@@ -576,6 +589,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             progress.step(&format!("loading the agent {}", dir.display()));
             let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
             let config = read_task(dir)?.insertion_config(&dir.join(super::agent::TASK_FILE))?;
+            refuse_rule_inputs(&config, &format!("the agent in {}", dir.display()))?;
             let network =
                 load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;
             let policy = QPolicy::new(

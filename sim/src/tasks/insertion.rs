@@ -120,6 +120,12 @@ pub struct InsertionConfig {
     pub caution_band_mps: f64,
     /// Speeds are divided by this in the scalar inputs, m/s.
     pub speed_scale_mps: f64,
+    /// Adds what the rule-based baselines act on to the scalar inputs ([`RULE_SCALARS`]):
+    /// the distance to the nearest circulating vehicle and from the ego's front to its
+    /// yield line, both over [`RULE_INPUT_RANGE_M`], and whether the ego has entered. Off by
+    /// default: the study's agent sees the ring only in the bird's-eye layers. Projected
+    /// logs do not provide these inputs.
+    pub rule_inputs: bool,
 }
 
 impl Default for InsertionConfig {
@@ -140,6 +146,7 @@ impl Default for InsertionConfig {
             comfort_decel_mps2: 2.5,
             caution_band_mps: 0.5,
             speed_scale_mps: 15.0,
+            rule_inputs: false,
         }
     }
 }
@@ -153,6 +160,12 @@ pub const SCALARS: usize = 3 + Action::ALL.len();
 pub const AGGRESSIVENESS_SCALAR: usize = 2;
 /// Where the last action's one-hot is among the scalar inputs.
 pub const LAST_ACTION_SCALARS: std::ops::Range<usize> = 3..SCALARS;
+
+/// Extra scalar inputs with [`InsertionConfig::rule_inputs`]: nearest circulating vehicle,
+/// distance to the yield line, entered (see [`rule_scalars`]).
+pub const RULE_SCALARS: usize = 3;
+/// Distances among the rule inputs are divided by this (and capped at ±1), m.
+pub const RULE_INPUT_RANGE_M: f64 = 50.0;
 
 /// The scalar inputs in their order: speed and target speed over `speed_scale_mps`, the
 /// aggressiveness, and the last action one-hot (all zero for none). Logs projected for an
@@ -174,7 +187,19 @@ pub fn observation_scalars(
     scalars
 }
 
-/// The observation shape of the task drawn with `bev`.
+/// The rule inputs of `state`: the nearest circulating vehicle's distance and the distance
+/// from the ego's front to its yield line over [`RULE_INPUT_RANGE_M`], clamped to [0, 1] and
+/// [-1, 1] (an empty ring reads 1), and 1 once the ego has entered.
+pub fn rule_scalars(state: &InsertionState) -> [f32; RULE_SCALARS] {
+    let scaled = |m: f64| (m / RULE_INPUT_RANGE_M).clamp(-1.0, 1.0) as f32;
+    [
+        scaled(state.nearest_circulating_m).max(0.0),
+        scaled(state.to_yield_line_m),
+        if state.ego_entered { 1.0 } else { 0.0 },
+    ]
+}
+
+/// The observation shape of the task drawn with `bev` (without the rule inputs).
 pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
     bev.observation_spec(SCALARS)
 }
@@ -212,7 +237,12 @@ impl InsertionSetup {
     }
 
     pub fn observation_spec(&self) -> ObservationSpec {
-        observation_spec(&self.config.observation)
+        let rule = if self.config.rule_inputs {
+            RULE_SCALARS
+        } else {
+            0
+        };
+        self.config.observation.observation_spec(SCALARS + rule)
     }
 }
 
@@ -240,8 +270,9 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
     Ok(())
 }
 
-/// What the rule-based baselines may look at (the learned agents see only the
-/// [`Observation`]): facts of the current state that a perception stack would report.
+/// What the rule-based baselines may look at (the learned agents see the [`Observation`],
+/// which carries these facts only with [`InsertionConfig::rule_inputs`]): facts of the
+/// current state that a perception stack would report.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct InsertionState {
     /// Straight-line distance from the ego to the nearest vehicle on the ring (infinite when
@@ -499,13 +530,16 @@ impl RoundaboutInsertion {
         let (speed, target) = self.world_and_ego().map_or((0.0, 0.0), |(world, ego)| {
             (world.vehicles()[ego].speed, self.target_speed(world, ego))
         });
-        let scalars = observation_scalars(
+        let mut scalars = observation_scalars(
             speed,
             target,
             self.config.speed_scale_mps,
             self.aggressiveness,
             Some(self.last_action),
         );
+        if self.config.rule_inputs {
+            scalars.extend(rule_scalars(&self.state()));
+        }
         Observation { layers, scalars }
     }
 
