@@ -11,6 +11,7 @@
 
 mod common;
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 
 use common::{assert_refused, assert_success, pipeline, read_json, shared_data, stderr};
@@ -369,49 +370,36 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     assert_success(&out, "agent eval <offline agent>");
     assert!(eval.join("eval.json").is_file());
 
-    // Offline learning is for roundabout insertion only.
-    let out = pipeline()
-        .args([
-            "--rerun",
-            "off",
-            "agent",
-            "train",
-            "--offline",
-            "--task",
-            "route-following",
-        ])
-        .arg("--map")
-        .arg(&map)
-        .arg("--log")
-        .arg(&log)
-        .arg("--out")
-        .arg(tmp.path().join("bad"))
-        .output()
-        .unwrap();
-    assert_refused(
-        &out,
-        "--offline learns roundabout insertion",
-        &tmp.path().join("bad"),
-    );
-
-    // Logs cannot give the rule inputs: a task that asks for them is refused.
+    // Refused before anything is written: offline learning is for roundabout insertion only,
+    // and logs cannot give the rule inputs.
     let rule_config = tmp.path().join("rule_inputs.toml");
     std::fs::write(&rule_config, "[agent.task]\nrule_inputs = true\n").unwrap();
-    let out = pipeline()
-        .args(["--rerun", "off", "--config"])
-        .arg(&rule_config)
-        .args(["agent", "train", "--offline", "--map"])
-        .arg(&map)
-        .arg("--log")
-        .arg(&log)
-        .arg("--out")
-        .arg(tmp.path().join("bad"))
-        .output()
-        .unwrap();
-    assert_refused(
-        &out,
+    let refused = |global: &[&OsStr], task: &[&str], message: &str| {
+        let bad = tmp.path().join("bad");
+        let out = pipeline()
+            .args(["--rerun", "off"])
+            .args(global)
+            .args(["agent", "train", "--offline"])
+            .args(task)
+            .arg("--map")
+            .arg(&map)
+            .arg("--log")
+            .arg(&log)
+            .arg("--out")
+            .arg(&bad)
+            .output()
+            .unwrap();
+        assert_refused(&out, message, &bad);
+    };
+    refused(
+        &[],
+        &["--task", "route-following"],
+        "--offline learns roundabout insertion",
+    );
+    refused(
+        &["--config".as_ref(), rule_config.as_os_str()],
+        &[],
         "`rule_inputs = true`, which projected logs cannot give",
-        &tmp.path().join("bad"),
     );
 }
 

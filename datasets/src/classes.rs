@@ -74,6 +74,16 @@ impl Class {
         Class::ALL.into_iter().find(|c| c.name() == name)
     }
 
+    /// What a source that cannot label this class calls its pixels, when that is known: lane
+    /// markings are painted road, and CamVid and Cityscapes label them road. None for the other
+    /// classes: a source that cannot label them does not say what it calls them instead.
+    pub const fn folds_into(self) -> Option<Class> {
+        match self {
+            Class::LaneMarking => Some(Class::Road),
+            Class::Road | Class::Vehicle | Class::Human | Class::Other => None,
+        }
+    }
+
     /// Colour in previews and in the rerun annotation context (Cityscapes-like where
     /// Cityscapes has the class; lane markings yellow so they stand out on road).
     pub const fn color(self) -> [u8; 3] {
@@ -85,6 +95,14 @@ impl Class {
             Class::Other => [110, 110, 110],
         }
     }
+}
+
+/// Whether a pixel labelled `label` by a source that cannot label class `class` may truly be
+/// `class` ([`Class::folds_into`]): a lane-marking prediction on a pixel CamVid calls road.
+pub fn may_stand_for(label: u8, class: u8) -> bool {
+    Class::from_id(class)
+        .and_then(Class::folds_into)
+        .is_some_and(|into| into.id() == label)
 }
 
 /// Whether a label value may appear in a label file: a class id or [`IGNORE`].

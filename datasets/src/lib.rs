@@ -18,6 +18,6 @@ pub mod shard;
 pub mod split;
 pub mod stats;
 
-pub use classes::{Class, IGNORE};
+pub use classes::{Class, IGNORE, may_stand_for};
 pub use error::{DatasetError, Result};
 pub use manifest::{Card, Dataset, Item};

@@ -61,14 +61,15 @@ pub fn predict_label(
 }
 
 /// The evaluation rule for a source that cannot label some classes (see [`super::loss`]):
-/// a prediction of such a class on a pixel the source labelled counts as that label.
+/// a prediction of such a class on a pixel the source calls by the class it folds into
+/// (lane marking on CamVid's road) counts as that label; elsewhere it is an error.
 pub fn credit_unlabelable(truth: &[u8], prediction: &mut [u8], unlabelable: &[bool]) {
     if !unlabelable.iter().any(|&u| u) {
         return;
     }
     for (p, &t) in prediction.iter_mut().zip(truth) {
         if unlabelable.get(usize::from(*p)).copied().unwrap_or(false)
-            && usize::from(t) < unlabelable.len()
+            && datasets::may_stand_for(t, *p)
         {
             *p = t;
         }
@@ -92,10 +93,15 @@ mod tests {
     }
 
     #[test]
-    fn unlabelable_predictions_count_as_the_label() {
-        let truth = [0u8, 0, 2, 255];
-        let mut pred = [1u8, 2, 1, 1];
+    fn unlabelable_markings_count_as_road_only() {
+        // Road, road, vehicle, ignored, other; the network says marking on all but the second.
+        let truth = [0u8, 0, 2, 255, 4];
+        let mut pred = [1u8, 2, 1, 1, 1];
         credit_unlabelable(&truth, &mut pred, &[false, true, false, false, false]);
-        assert_eq!(pred, [0, 2, 2, 1]);
+        assert_eq!(pred, [0, 2, 1, 1, 1]);
+        // A source that cannot label humans gets no credit for them anywhere.
+        let mut pred = [3u8, 3, 3, 3, 3];
+        credit_unlabelable(&truth, &mut pred, &[false, false, false, true, false]);
+        assert_eq!(pred, [3; 5]);
     }
 }

@@ -1,18 +1,22 @@
 //! The training loss: pixel-wise cross-entropy with class weights and an ignore label, where
-//! classes a source cannot label are merged into whatever the source labelled.
+//! a class a source cannot label is merged into the class the source calls it.
 //!
 //! The rule for a source that cannot label some classes `U` (its card's `labelable` list
 //! leaves them out; CamVid and Cityscapes never label lane markings, which they call road):
-//! a pixel labelled `y` by that source counts as correct if the network predicts `y` *or*
-//! any class of `U`, because the truth may be a `U` class the source could not name. The
-//! pixel's loss is
+//! a pixel labelled `y` by that source counts as correct if the network predicts `y` *or* a
+//! class of `U` that the source calls `y` (`U_y`: lane marking on a pixel labelled road,
+//! [`datasets::may_stand_for`]), because the truth may be a marking the source could not name.
+//! The pixel's loss is
 //!
 //! ```text
-//! −log Σ_{c ∈ {y} ∪ U} softmax(logits)_c  =  logsumexp(all logits) − logsumexp(logits of {y} ∪ U)
+//! −log Σ_{c ∈ {y} ∪ U_y} softmax(logits)_c  =  logsumexp(all logits) − logsumexp(logits of {y} ∪ U_y)
 //! ```
 //!
-//! which is plain cross-entropy when `U` is empty. The source then neither teaches nor
-//! punishes the `U` classes; data that labels them (generated images) teaches them.
+//! which is plain cross-entropy when `U_y` is empty. The source neither teaches nor punishes
+//! markings on its road; data that labels them (generated images) teaches them. A marking
+//! predicted on a pixel the source labelled vehicle, human or other is an error as usual: with
+//! *any* class of `U` accepted everywhere, predicting lane marking on every pixel of a CamVid
+//! image cost nothing, and a network learnt exactly that within one epoch.
 //! Pixels labelled [`IGNORE`] (255) count nothing. With class weights `w` the loss is
 //! `Σ w[y]·loss / Σ w[y]` over counted pixels, as PyTorch's `CrossEntropyLoss(weight=...)`.
 //! Evaluation applies the same rule to predictions (see `eval`).
@@ -65,9 +69,10 @@ impl LossTargets {
                 }
                 weights[b * plane + i] = class_weights[y];
                 allowed[at(y)] = 1.0;
-                for c in
-                    (0..classes).filter(|&c| label.unlabelable.get(c).copied().unwrap_or(false))
-                {
+                for c in (0..classes).filter(|&c| {
+                    label.unlabelable.get(c).copied().unwrap_or(false)
+                        && datasets::may_stand_for(y as u8, c as u8)
+                }) {
                     allowed[at(c)] = 1.0;
                 }
             }
@@ -150,15 +155,15 @@ mod tests {
     }
 
     #[test]
-    fn classes_a_source_cannot_label_are_merged_into_the_label() {
-        // Pixel 3 is labelled 0 but the network says class 2 (logit 4): costly normally,
-        // nearly free when the source cannot label class 2.
-        let labels = [255u8, 255, 255, 0];
+    fn lane_markings_a_source_cannot_label_are_merged_into_its_road_only() {
+        // Classes 0 road, 1 lane marking, 2 vehicle. Pixel 1 is labelled road but the network
+        // says lane marking (logit 3): costly normally, nearly free when the source cannot
+        // label markings (it calls them road).
         let weights = [1.0f32; 3];
-        let loss_with = |unlabelable: [bool; 3]| {
+        let loss_with = |labels: &[u8; 4], unlabelable: [bool; 3]| {
             let t = LossTargets::new(
                 &[LabelRef {
-                    pixels: &labels,
+                    pixels: labels,
                     unlabelable: &unlabelable,
                 }],
                 [1, 4],
@@ -167,19 +172,35 @@ mod tests {
             );
             scalar(segmentation_loss(logits(), &t))
         };
-        let plain = loss_with([false; 3]);
-        let merged = loss_with([false, false, true]);
         let logp = log_softmax(logits(), 1)
             .into_data()
             .try_to_vec::<f32>()
             .unwrap_or_default();
-        let expected_merged = -(logp[3].exp() + logp[8 + 3].exp()).ln();
-        assert!((plain + logp[3]).abs() < 1e-5);
+        let road = [255u8, 0, 255, 255];
+        let plain = loss_with(&road, [false; 3]);
+        let merged = loss_with(&road, [false, true, false]);
+        let expected_merged = -(logp[1].exp() + logp[4 + 1].exp()).ln();
+        assert!((plain + logp[1]).abs() < 1e-5);
         assert!(
             (merged - expected_merged).abs() < 1e-5,
             "{merged} vs {expected_merged}"
         );
         assert!(merged < 0.1 && plain > 3.0);
+        // The same marking prediction on a pixel labelled vehicle stays an error: a source
+        // that cannot label markings does not call them vehicle.
+        let vehicle = [255u8, 2, 255, 255];
+        assert!(
+            (loss_with(&vehicle, [false, true, false]) - loss_with(&vehicle, [false; 3])).abs()
+                < 1e-6
+        );
+        // Nor is any other class a source cannot label merged into anything.
+        let labelled_road_said_vehicle = [255u8, 255, 255, 0];
+        assert!(
+            (loss_with(&labelled_road_said_vehicle, [false, false, true])
+                - loss_with(&labelled_road_said_vehicle, [false; 3]))
+            .abs()
+                < 1e-6
+        );
         // Nothing counted: zero, not NaN.
         let all_ignored = [255u8; 4];
         let t = LossTargets::new(
