@@ -371,7 +371,7 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     assert!(eval.join("eval.json").is_file());
 
     // Refused before anything is written: offline learning is for roundabout insertion only,
-    // and logs cannot give the rule inputs.
+    // and logs cannot give the rule inputs nor frames several steps apart.
     let rule_config = tmp.path().join("rule_inputs.toml");
     std::fs::write(&rule_config, "[agent.task]\nrule_inputs = true\n").unwrap();
     let refused = |global: &[&OsStr], task: &[&str], message: &str| {
@@ -400,6 +400,13 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         &["--config".as_ref(), rule_config.as_os_str()],
         &[],
         "`rule_inputs = true`, which projected logs cannot give",
+    );
+    let repeat_config = tmp.path().join("action_repeat.toml");
+    std::fs::write(&repeat_config, "[agent.task]\naction_repeat = 3\n").unwrap();
+    refused(
+        &["--config".as_ref(), repeat_config.as_os_str()],
+        &[],
+        "`action_repeat = 3`: it decides every 3 steps",
     );
 }
 

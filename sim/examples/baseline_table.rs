@@ -3,6 +3,8 @@
 //!
 //!     cargo run --release -p sim --example baseline_table -- \
 //!         --map data/osm/montlake_roundabout.osm.pbf --traffic medium --aggressiveness 0.5 --episodes 3000
+//!
+//! `--action-repeat N` lets every policy decide every N world steps (`InsertionConfig::action_repeat`).
 #![allow(clippy::print_stdout, clippy::print_stderr)]
 
 use std::sync::Arc;
@@ -21,6 +23,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..EvalOptions::default()
     };
     let mut json: Option<String> = None;
+    let mut config = InsertionConfig::default();
     let mut args = std::env::args().skip(1);
     while let Some(flag) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{flag} needs a value"));
@@ -31,6 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--episodes" => options.episodes = value()?.parse()?,
             "--seed" => options.seed = value()?.parse()?,
             "--json" => json = Some(value()?),
+            "--action-repeat" => config.action_repeat = value()?.parse()?,
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -51,7 +55,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
     let map = maps::import_file(std::path::Path::new(&map_path), &Default::default())
         .map_err(|e| format!("{map_path}: {e}"))?;
-    let setup = InsertionSetup::new(Arc::new(map), InsertionConfig::default())?;
+    let setup = InsertionSetup::new(Arc::new(map), config)?;
     let started = std::time::Instant::now();
     let mut rows = Vec::new();
     for baseline in Baseline::STANDARD {

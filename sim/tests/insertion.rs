@@ -195,3 +195,64 @@ fn rule_inputs_give_the_agent_what_the_rules_see() {
         "a car within 50 m: {saw_a_car}, entered: {entered}"
     );
 }
+
+/// With `action_repeat = 3` one decision is three world steps under the same action: the
+/// same world, the rewards summed, the same outcome and the same newest frame as three
+/// single steps, and an episode ends within the decision where it ends.
+#[test]
+fn action_repeat_holds_the_action_for_that_many_steps() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data/osm/montlake_roundabout.osm.pbf");
+    let map = Arc::new(maps::import_file(&path, &Default::default()).unwrap());
+    let make = |action_repeat: usize| {
+        let config = InsertionConfig {
+            action_repeat,
+            aggressiveness: Some(0.5),
+            ..InsertionConfig::default()
+        };
+        RoundaboutInsertion::new(InsertionSetup::new(Arc::clone(&map), config).unwrap())
+    };
+    let (mut single, mut repeated) = (make(1), make(3));
+    let mut ended = 0;
+    for episode in 0..6u64 {
+        single.reset(episode);
+        repeated.reset(episode);
+        for decision in 0..200 {
+            // Wait for a while, then go: both outcomes and several action changes occur.
+            let action = usize::from(decision < 8 + 3 * episode as usize);
+            let b = repeated.step(action);
+            let (mut reward, mut outcome) = (0.0f64, None);
+            for _ in 0..3 {
+                let a = single.step(action);
+                reward += f64::from(a.reward);
+                outcome = a.outcome;
+                if outcome.is_some() {
+                    break;
+                }
+            }
+            assert_eq!(b.outcome, outcome, "episode {episode}, decision {decision}");
+            assert!(
+                (f64::from(b.reward) - reward).abs() < 1e-6,
+                "episode {episode}, decision {decision}: {} against {reward}",
+                b.reward
+            );
+            assert_eq!(repeated.state(), single.state());
+            assert_eq!(repeated.newest_frame(), single.newest_frame());
+            if outcome.is_some() {
+                ended += 1;
+                break;
+            }
+        }
+    }
+    assert_eq!(ended, 6, "every episode ends within 200 decisions");
+    assert!(
+        InsertionSetup::new(
+            Arc::clone(&map),
+            InsertionConfig {
+                action_repeat: 0,
+                ..InsertionConfig::default()
+            }
+        )
+        .is_err()
+    );
+}

@@ -508,13 +508,25 @@ impl Views {
     }
 }
 
-/// Projected logs give the bird's-eye layers and the speed, not the rule inputs
-/// ([`InsertionConfig::rule_inputs`]): one clear error for a task that asks for them.
-pub(crate) fn refuse_rule_inputs(config: &InsertionConfig, whose: &str) -> Result<()> {
+/// Projected logs give the bird's-eye layers and the speed of every log frame, not the rule
+/// inputs ([`InsertionConfig::rule_inputs`]) nor frames stacked several world steps apart
+/// ([`InsertionConfig::action_repeat`]): one clear error for a task that asks for either.
+pub(crate) fn refuse_unprojectable(config: &InsertionConfig, whose: &str) -> Result<()> {
     if config.rule_inputs {
         return Err(CliError::new(
             format!("{whose} has `rule_inputs = true`, which projected logs cannot give"),
             "use a task without rule inputs (the default) for logs",
+        )
+        .into());
+    }
+    if config.action_repeat != 1 {
+        return Err(CliError::new(
+            format!(
+                "{whose} has `action_repeat = {}`: it decides every {} steps on frames stacked \
+                 that far apart, and projected logs give one frame per step",
+                config.action_repeat, config.action_repeat
+            ),
+            "use a task with action_repeat = 1 (the default) for logs",
         )
         .into());
     }
@@ -589,7 +601,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             progress.step(&format!("loading the agent {}", dir.display()));
             let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
             let config = read_task(dir)?.insertion_config(&dir.join(super::agent::TASK_FILE))?;
-            refuse_rule_inputs(&config, &format!("the agent in {}", dir.display()))?;
+            refuse_unprojectable(&config, &format!("the agent in {}", dir.display()))?;
             let network =
                 load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;
             let policy = QPolicy::new(

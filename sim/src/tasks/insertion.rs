@@ -126,6 +126,10 @@ pub struct InsertionConfig {
     /// default: the study's agent sees the ring only in the bird's-eye layers. Projected
     /// logs do not provide these inputs.
     pub rule_inputs: bool,
+    /// World steps (`traffic.step_s` each) per decision: the action is held and the rewards
+    /// summed over them, and a frame is drawn once per decision, so the frame stack spans
+    /// `action_repeat` steps per frame. 1 (the default) decides every step, as the study did.
+    pub action_repeat: usize,
 }
 
 impl Default for InsertionConfig {
@@ -147,6 +151,7 @@ impl Default for InsertionConfig {
             caution_band_mps: 0.5,
             speed_scale_mps: 15.0,
             rule_inputs: false,
+            action_repeat: 1,
         }
     }
 }
@@ -259,6 +264,11 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
         if !(v.is_finite() && v > 0.0) {
             return Err(SimError::Config(format!("{name} = {v} must be positive")));
         }
+    }
+    if c.action_repeat == 0 {
+        return Err(SimError::Config(
+            "action_repeat = 0: at least one world step per decision".to_owned(),
+        ));
     }
     if let Some(a) = c.aggressiveness
         && !(0.0..=1.0).contains(&a)
@@ -674,17 +684,25 @@ impl Env for RoundaboutInsertion {
             return finished; // never reset
         };
         let action = Action::from_index(action).unwrap_or(Action::NotPermitted);
-        let outcome = match world.ego_index() {
-            Some(ego) => {
-                let accel = self.ego_accel(&world, ego, action);
-                world.step(accel);
-                self.resolve(&mut world, action)
+        let (mut reward, mut outcome) = (0.0, None);
+        for _ in 0..self.config.action_repeat {
+            let (r, o) = match world.ego_index() {
+                Some(ego) => {
+                    let accel = self.ego_accel(&world, ego, action);
+                    world.step(accel);
+                    self.resolve(&mut world, action)
+                }
+                None => (0.0, Some(Outcome::TimeOver)),
+            };
+            // The indecision penalty is for changing the action: once per decision.
+            self.last_action = action;
+            reward += r;
+            outcome = o;
+            if outcome.is_some() {
+                break;
             }
-            None => (0.0, Some(Outcome::TimeOver)),
-        };
+        }
         self.world = Some(world);
-        let (reward, outcome) = outcome;
-        self.last_action = action;
         self.outcome = outcome;
         self.episode_return += reward;
         self.render(false);

@@ -97,7 +97,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let mut progress = ctx.ui.progress("agent train --offline");
 
     let task_config = ctx.config.agent.task.clone();
-    crate::commands::replay::refuse_rule_inputs(&task_config, "[agent.task]")?;
+    crate::commands::replay::refuse_unprojectable(&task_config, "[agent.task]")?;
     let mut dqn = ctx.config.agent.dqn.clone();
     for ignored in std::iter::once(AGGRESSIVENESS_SCALAR).chain(LAST_ACTION_SCALARS) {
         if !dqn.network.ignored_scalars.contains(&ignored) {
