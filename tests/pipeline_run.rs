@@ -147,6 +147,38 @@ fn runs_every_stage_then_skips_what_did_not_change() {
     } else {
         println!("skipped: rerun CLI not installed");
     }
+    // Every evaluation episode of every policy, one line each, agreeing with eval.json.
+    let eval = read_json(&out.join("agent/eval/eval.json"));
+    let csv = std::fs::read_to_string(out.join("agent/eval/episodes.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some(
+            "policy,traffic,aggressiveness,episode,outcome,steps,return,mean_speed_mps,time_to_enter_s"
+        )
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let policies = eval["conditions"][0]["policies"].as_array().unwrap();
+    let episodes = eval["episodes"].as_u64().unwrap() as usize;
+    assert_eq!(rows.len(), policies.len() * episodes);
+    for p in policies {
+        let name = p["policy"].as_str().unwrap();
+        let mine: Vec<&Vec<&str>> = rows.iter().filter(|r| r[0] == name).collect();
+        assert_eq!(mine.len(), episodes, "{name}");
+        for (key, outcome) in [
+            ("reaches", "reached"),
+            ("crashes", "crashed"),
+            ("time_overs", "time_over"),
+        ] {
+            let count = mine.iter().filter(|r| r[4] == outcome).count();
+            let fraction = p[key].as_f64().unwrap();
+            assert!(
+                (count as f64 / episodes as f64 - fraction).abs() < 1e-9,
+                "{name}: {count} {outcome} against {key} {fraction}"
+            );
+        }
+    }
+
     // The simulated log reads back exactly and projects to the simulator's own frames.
     let projection = read_json(&out.join("logs/simulated/projection.json"));
     assert!(projection["frames"].as_u64().unwrap() > 0);

@@ -12,11 +12,24 @@ use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
 use sim::world::TrafficLevel;
 use sim::{Env, Outcome};
 
-fn setup() -> Arc<InsertionSetup> {
+/// The bundled montlake_roundabout map.
+fn montlake() -> Arc<maps::Map> {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../data/osm/montlake_roundabout.osm.pbf");
-    let map = maps::import_file(&path, &Default::default()).unwrap();
-    InsertionSetup::new(Arc::new(map), InsertionConfig::default()).unwrap()
+    Arc::new(maps::import_file(&path, &Default::default()).unwrap())
+}
+
+/// An insertion episode on montlake at aggressiveness 0.5, the config otherwise `config`.
+fn montlake_env(map: &Arc<maps::Map>, config: InsertionConfig) -> RoundaboutInsertion {
+    let config = InsertionConfig {
+        aggressiveness: Some(0.5),
+        ..config
+    };
+    RoundaboutInsertion::new(InsertionSetup::new(Arc::clone(map), config).unwrap())
+}
+
+fn setup() -> Arc<InsertionSetup> {
+    InsertionSetup::new(montlake(), InsertionConfig::default()).unwrap()
 }
 
 /// 1,000 steps with random actions (episodes reset as they end): rewards as bits, outcomes
@@ -155,18 +168,13 @@ fn baselines_show_what_the_task_asks() {
 #[test]
 fn rule_inputs_give_the_agent_what_the_rules_see() {
     use sim::tasks::insertion::{RULE_SCALARS, SCALARS, rule_scalars};
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../data/osm/montlake_roundabout.osm.pbf");
-    let map = Arc::new(maps::import_file(&path, &Default::default()).unwrap());
-    let make = |rule_inputs: bool| {
-        let config = InsertionConfig {
-            rule_inputs,
-            aggressiveness: Some(0.5),
-            ..InsertionConfig::default()
-        };
-        RoundaboutInsertion::new(InsertionSetup::new(Arc::clone(&map), config).unwrap())
+    let map = montlake();
+    let mut plain = montlake_env(&map, InsertionConfig::default());
+    let with_rule_inputs = InsertionConfig {
+        rule_inputs: true,
+        ..InsertionConfig::default()
     };
-    let (mut plain, mut with_rule) = (make(false), make(true));
+    let mut with_rule = montlake_env(&map, with_rule_inputs);
     assert_eq!(plain.observation_spec().scalars, SCALARS);
     assert_eq!(with_rule.observation_spec().scalars, SCALARS + RULE_SCALARS);
     let first = with_rule.reset(3);
@@ -201,18 +209,13 @@ fn rule_inputs_give_the_agent_what_the_rules_see() {
 /// single steps, and an episode ends within the decision where it ends.
 #[test]
 fn action_repeat_holds_the_action_for_that_many_steps() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../data/osm/montlake_roundabout.osm.pbf");
-    let map = Arc::new(maps::import_file(&path, &Default::default()).unwrap());
-    let make = |action_repeat: usize| {
-        let config = InsertionConfig {
-            action_repeat,
-            aggressiveness: Some(0.5),
-            ..InsertionConfig::default()
-        };
-        RoundaboutInsertion::new(InsertionSetup::new(Arc::clone(&map), config).unwrap())
+    let map = montlake();
+    let mut single = montlake_env(&map, InsertionConfig::default());
+    let three_steps = InsertionConfig {
+        action_repeat: 3,
+        ..InsertionConfig::default()
     };
-    let (mut single, mut repeated) = (make(1), make(3));
+    let mut repeated = montlake_env(&map, three_steps);
     let mut ended = 0;
     for episode in 0..6u64 {
         single.reset(episode);

@@ -1,7 +1,9 @@
 //! `pipeline agent eval`: an agent and the baselines on the same episodes of every
 //! condition (traffic level × the ego's aggressiveness), with the sim crate's parallel
 //! evaluation harness. Writes `eval.json` (fractions of reaches, crashes, off-roads and
-//! time-overs per condition and policy), `eval.md` (the table) and `recording.rrd`.
+//! time-overs per condition and policy), `eval.md` (the table) and `recording.rrd`; for
+//! roundabout insertion also `episodes.csv`, every episode's outcome per policy and condition,
+//! so two policies can be compared episode by episode.
 
 use std::path::{Path, PathBuf};
 
@@ -11,8 +13,12 @@ use models::policy::QPolicy;
 use models::qnet::QNetwork;
 use serde::Serialize;
 use sim::baselines::Baseline;
-use sim::eval::{Condition, ConditionResult, EVAL_STAGE, EvalOptions, evaluate, markdown_table};
+use sim::eval::{
+    Condition, ConditionResult, EVAL_STAGE, EvalOptions, evaluate_episodes, markdown_table,
+    summarise,
+};
 use sim::seed::derive_seed;
+use sim::tasks::insertion::EpisodeSummary;
 use sim::tasks::{Task as _, TaskResult, run_episodes, task_table};
 use sim::world::TrafficLevel;
 use sim::{Env as _, ObservationSpec};
@@ -28,6 +34,7 @@ use crate::ui::Progress;
 
 pub const EVAL_JSON: &str = "eval.json";
 pub const EVAL_MD: &str = "eval.md";
+pub const EPISODES_CSV: &str = "episodes.csv";
 const EVAL_MARKERS: Markers = &[EVAL_JSON];
 
 /// Episodes a Q-network policy runs side by side (one batched forward pass per step).
@@ -171,9 +178,10 @@ fn eval_insertion(
         args.episodes,
         conditions.len()
     ));
-    let mut rows: Vec<(String, Vec<ConditionResult>)> = vec![(
+    // Per policy, per condition, every episode in order.
+    let mut episodes_of: Vec<(String, Vec<Vec<EpisodeSummary>>)> = vec![(
         "agent".to_owned(),
-        evaluate(&setup, || policy.clone(), &conditions, &options, &quiet),
+        evaluate_episodes(&setup, || policy.clone(), &conditions, &options, &quiet),
     )];
     if !args.no_baselines {
         let baseline_options = EvalOptions {
@@ -182,12 +190,24 @@ fn eval_insertion(
         };
         for baseline in Baseline::STANDARD {
             progress.step(&format!("baseline {}", baseline.name()));
-            rows.push((
+            episodes_of.push((
                 baseline.name(),
-                evaluate(&setup, || baseline, &conditions, &baseline_options, &quiet),
+                evaluate_episodes(&setup, || baseline, &conditions, &baseline_options, &quiet),
             ));
         }
     }
+    let rows: Vec<(String, Vec<ConditionResult>)> = episodes_of
+        .iter()
+        .map(|(name, per_condition)| {
+            let results = conditions
+                .iter()
+                .zip(per_condition)
+                .map(|(condition, episodes)| summarise(*condition, episodes))
+                .collect();
+            (name.clone(), results)
+        })
+        .collect();
+    let episodes_csv = episodes_csv(&episodes_of, &conditions);
 
     let report = EvalReport {
         agent: args.agent.clone(),
@@ -221,7 +241,8 @@ fn eval_insertion(
     );
 
     let map = setup.map();
-    write_outputs(ctx, args, &out, &report, &table, progress, |rec| {
+    let extra = [(EPISODES_CSV, episodes_csv.as_bytes())];
+    write_outputs(ctx, args, &out, &report, &table, &extra, progress, |rec| {
         crate::recording::log_map(rec, map)?;
         let condition = Condition {
             traffic: TrafficLevel::Medium,
@@ -337,7 +358,7 @@ fn eval_task<K: GenericTask>(
         ctx.cli.seed,
     );
 
-    write_outputs(ctx, args, &out, &report, &text, progress, |rec| {
+    write_outputs(ctx, args, &out, &report, &text, &[], progress, |rec| {
         if let Some(map) = K::map(&setup) {
             crate::recording::log_map(rec, map)?;
         }
@@ -351,20 +372,26 @@ fn eval_task<K: GenericTask>(
     })
 }
 
-/// Writes `eval.json`, `eval.md` and the recording (the greedy episodes `record` logs,
-/// when `--record-episodes` asks for any) into `out`, atomically, and prints the table.
+/// Writes `eval.json`, `eval.md`, the `extra` files (name, contents) and the recording (the
+/// greedy episodes `record` logs, when `--record-episodes` asks for any) into `out`,
+/// atomically, and prints the table.
+#[allow(clippy::too_many_arguments)]
 fn write_outputs(
     ctx: &Context<'_>,
     args: &EvalArgs,
     out: &Path,
     report: &impl Serialize,
     text: &str,
+    extra: &[(&str, &[u8])],
     mut progress: Progress<'_>,
     record: impl FnOnce(&Stream) -> Result<()>,
 ) -> Result<()> {
     let dir = AtomicDir::create(out, EVAL_MARKERS)?;
     write_json(&dir.path().join(EVAL_JSON), report)?;
     write_file_atomic(&dir.path().join(EVAL_MD), text.as_bytes())?;
+    for (name, contents) in extra {
+        write_file_atomic(&dir.path().join(name), contents)?;
+    }
     let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream()
         && args.record_episodes > 0
@@ -378,6 +405,41 @@ fn write_outputs(
     ctx.ui
         .result(&format!("{text}\nwritten to {}", dest.display()));
     Ok(())
+}
+
+/// `episodes.csv`: one line per policy, condition and episode (episode k is seeded alike for
+/// every policy), in the order of `eval.json`.
+fn episodes_csv(
+    episodes_of: &[(String, Vec<Vec<EpisodeSummary>>)],
+    conditions: &[Condition],
+) -> String {
+    let mut csv = String::from(
+        "policy,traffic,aggressiveness,episode,outcome,steps,return,mean_speed_mps,time_to_enter_s\n",
+    );
+    for (policy, per_condition) in episodes_of {
+        for (condition, episodes) in conditions.iter().zip(per_condition) {
+            for (k, e) in episodes.iter().enumerate() {
+                let outcome = match e.outcome {
+                    sim::Outcome::Reached => "reached",
+                    sim::Outcome::Crashed => "crashed",
+                    sim::Outcome::OffRoad => "off_road",
+                    sim::Outcome::TimeOver => "time_over",
+                };
+                let enter = e
+                    .time_to_enter_s
+                    .map_or(String::new(), |t| format!("{t:.1}"));
+                csv.push_str(&format!(
+                    "{policy},{},{},{k},{outcome},{},{:.4},{:.3},{enter}\n",
+                    condition.traffic.name(),
+                    condition.aggressiveness,
+                    e.steps,
+                    e.episode_return,
+                    e.mean_speed_mps,
+                ));
+            }
+        }
+    }
+    csv
 }
 
 /// The conditions asked for: traffic levels × aggressiveness values.
