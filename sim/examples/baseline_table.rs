@@ -5,12 +5,14 @@
 //!         --map data/osm/montlake_roundabout.osm.pbf --traffic medium --aggressiveness 0.5 --episodes 3000
 //!
 //! `--action-repeat N` lets every policy decide every N world steps (`InsertionConfig::action_repeat`).
+//! `--failures` also lists, per policy and condition, the episodes that did not reach the goal.
 #![allow(clippy::print_stdout, clippy::print_stderr)]
 
 use std::sync::Arc;
 
 use sim::baselines::Baseline;
-use sim::eval::{Condition, EvalOptions, evaluate, markdown_table};
+use sim::env::Outcome;
+use sim::eval::{Condition, EvalOptions, evaluate_episodes, markdown_table, summarise};
 use sim::tasks::{InsertionConfig, InsertionSetup};
 use sim::world::TrafficLevel;
 
@@ -23,6 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..EvalOptions::default()
     };
     let mut json: Option<String> = None;
+    let mut failures = false;
     let mut config = InsertionConfig::default();
     let mut args = std::env::args().skip(1);
     while let Some(flag) = args.next() {
@@ -35,6 +38,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--seed" => options.seed = value()?.parse()?,
             "--json" => json = Some(value()?),
             "--action-repeat" => config.action_repeat = value()?.parse()?,
+            "--failures" => failures = true,
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -59,7 +63,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let started = std::time::Instant::now();
     let mut rows = Vec::new();
     for baseline in Baseline::STANDARD {
-        let results = evaluate(&setup, || baseline, &conditions, &options, &|_| {});
+        let episodes = evaluate_episodes(&setup, || baseline, &conditions, &options, &|_| {});
+        if failures {
+            for (condition, summaries) in conditions.iter().zip(&episodes) {
+                let failed: Vec<String> = summaries
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, e)| e.outcome != Outcome::Reached)
+                    .map(|(k, e)| format!("{k} {:?}", e.outcome))
+                    .collect();
+                eprintln!(
+                    "{} at {} traffic, aggressiveness {}: did not reach in {}",
+                    baseline.name(),
+                    condition.traffic.name(),
+                    condition.aggressiveness,
+                    failed.join(", ")
+                );
+            }
+        }
+        let results = conditions
+            .iter()
+            .zip(&episodes)
+            .map(|(&c, summaries)| summarise(c, summaries))
+            .collect();
         rows.push((baseline.name(), results));
     }
     println!("{}", markdown_table(&rows));

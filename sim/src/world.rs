@@ -34,6 +34,8 @@ use crate::spatial::UniformGrid;
 
 /// How far ahead other drivers look for cars covering their path, m.
 const OTHERS_OBSTACLE_HORIZON_M: f64 = 8.0;
+/// Below this speed a driver has stopped (and a commitment to a gap is reconsidered).
+const STOPPED_MPS: f64 = 0.1;
 
 /// Traffic density, as in the Parma study: at most 4 / 6 / 8 other vehicles in the
 /// roundabout (its approaches, ring and exits) at once.
@@ -748,10 +750,26 @@ impl World {
         best
     }
 
+    /// A driver who committed to a gap but had to stop before reaching the yield line
+    /// (behind a queue, or behind a car merging ahead) has lost that gap: the commitment
+    /// is dropped and the driver decides again at the line. Kept, it makes circulating
+    /// drivers yield to a car that is not coming, and chains of such yields closed into
+    /// gridlocks (the ring stopped for the rest of an episode). The ego under the agent's
+    /// control is committed only past its line, so this never touches it.
+    fn reconsider_stopped_commitments(&mut self) {
+        for v in &mut self.vehicles {
+            let route = &self.layout.routes[v.route];
+            if v.committed && v.speed < STOPPED_MPS && v.front_s() < route.yield_s {
+                v.committed = false;
+            }
+        }
+    }
+
     /// Gap acceptance: uncommitted drivers near their yield line commit when every
     /// circulating vehicle heading for their merge point is far enough away in time. The
     /// ego decides this way only when its driver model drives it (`ego_driven`).
     fn decide_gaps(&mut self, ego_driven: bool) {
+        self.reconsider_stopped_commitments();
         let mut commit = Vec::new();
         for (i, v) in self.vehicles.iter().enumerate() {
             if v.committed || (v.is_ego() && !ego_driven) {
