@@ -11,7 +11,12 @@ use sim::baselines::{Baseline, Policy, PolicyInput};
 use sim::eval::EVAL_STAGE;
 use sim::seed::derive_seed;
 use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
-use sim::world::TrafficLevel;
+use sim::world::{Leader, TrafficLevel};
+
+/// A vehicle ahead as (index, gap to 0.1 m).
+fn brief(ahead: Option<Leader>) -> Option<(usize, f64)> {
+    ahead.map(|l| (l.index, (l.gap_m * 10.0).round() / 10.0))
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -59,15 +64,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 r.exit_s - ego.s,
                 r.path.length() - ego.s,
                 ego.speed,
-                world
-                    .leader(ego_i)
-                    .map(|l| (l.index, (l.gap_m * 10.0).round() / 10.0)),
-                world
-                    .merging_leader(ego_i)
-                    .map(|l| (l.index, (l.gap_m * 10.0).round() / 10.0)),
-                world
-                    .obstacle_on_path(ego_i, 8.0)
-                    .map(|l| (l.index, (l.gap_m * 10.0).round() / 10.0)),
+                brief(world.leader(ego_i)),
+                brief(world.merging_leader(ego_i)),
+                brief(world.obstacle_on_path(ego_i, 8.0)),
             );
             for (j, o) in world.vehicles().iter().enumerate() {
                 let d = o.position.distance(ego.position);
@@ -86,15 +85,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     or.exit_s - o.s,
                     o.speed,
                     o.committed,
-                    world
-                        .leader(j)
-                        .map(|l| (l.index, (l.gap_m * 10.0).round() / 10.0)),
-                    world
-                        .merging_leader(j)
-                        .map(|l| (l.index, (l.gap_m * 10.0).round() / 10.0)),
-                    world
-                        .obstacle_on_path(j, 8.0)
-                        .map(|l| (l.index, (l.gap_m * 10.0).round() / 10.0)),
+                    brief(world.leader(j)),
+                    brief(world.merging_leader(j)),
+                    brief(world.obstacle_on_path(j, 8.0)),
                 );
             }
         }
