@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use sim::baselines::Baseline;
 use sim::env::Outcome;
-use sim::eval::{Condition, EvalOptions, evaluate_episodes, markdown_table, summarise};
+use sim::eval::{Condition, EvalOptions, evaluate_episodes, markdown_table, summarise_conditions};
 use sim::tasks::{InsertionConfig, InsertionSetup};
 use sim::world::TrafficLevel;
 
@@ -70,7 +70,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .iter()
                     .enumerate()
                     .filter(|(_, e)| e.outcome != Outcome::Reached)
-                    .map(|(k, e)| format!("{k} {:?}", e.outcome))
+                    .map(|(k, e)| format!("{k} {}", e.outcome.name()))
                     .collect();
                 eprintln!(
                     "{} at {} traffic, aggressiveness {}: did not reach in {}",
@@ -81,12 +81,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 );
             }
         }
-        let results = conditions
-            .iter()
-            .zip(&episodes)
-            .map(|(&c, summaries)| summarise(c, summaries))
-            .collect();
-        rows.push((baseline.name(), results));
+        rows.push((
+            baseline.name(),
+            summarise_conditions(&conditions, &episodes),
+        ));
     }
     println!("{}", markdown_table(&rows));
     eprintln!(

@@ -46,6 +46,18 @@ pub enum Outcome {
     TimeOver,
 }
 
+impl Outcome {
+    /// The outcome's name in written files, the one serde writes (`time_over`, ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            Outcome::Reached => "reached",
+            Outcome::Crashed => "crashed",
+            Outcome::OffRoad => "off_road",
+            Outcome::TimeOver => "time_over",
+        }
+    }
+}
+
 /// What one [`Env::step`] returns.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Step {
@@ -66,4 +78,25 @@ pub trait Env: Send {
     /// Advances one policy step. Calling it after an episode ended is a logic error and
     /// returns the final step again with zero reward.
     fn step(&mut self, action: usize) -> Step;
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::Outcome;
+
+    #[test]
+    fn outcome_names_are_the_serde_names() {
+        for o in [
+            Outcome::Reached,
+            Outcome::Crashed,
+            Outcome::OffRoad,
+            Outcome::TimeOver,
+        ] {
+            assert_eq!(
+                serde_json::to_value(o).unwrap(),
+                serde_json::json!(o.name())
+            );
+        }
+    }
 }

@@ -139,10 +139,19 @@ where
     P: Policy,
     F: Fn() -> P + Sync,
 {
-    evaluate_episodes(setup, make_policy, conditions, options, progress)
+    let episodes = evaluate_episodes(setup, make_policy, conditions, options, progress);
+    summarise_conditions(conditions, &episodes)
+}
+
+/// [`summarise`] for every condition, from [`evaluate_episodes`]' episodes per condition.
+pub fn summarise_conditions(
+    conditions: &[Condition],
+    episodes: &[Vec<EpisodeSummary>],
+) -> Vec<ConditionResult> {
+    conditions
         .iter()
-        .zip(conditions)
-        .map(|(episodes, condition)| summarise(*condition, episodes))
+        .zip(episodes)
+        .map(|(condition, episodes)| summarise(*condition, episodes))
         .collect()
 }
 

@@ -11,6 +11,14 @@ use sim::world::{Driver, DriverConfig, EgoConfig, TrafficConfig, TrafficLevel, W
 /// Worlds the gridlock test runs (three simulated minutes each).
 const SEEDS: u64 = 30;
 
+/// The default traffic at the high level (at most 8 other vehicles).
+fn high_traffic() -> TrafficConfig {
+    TrafficConfig {
+        level: TrafficLevel::High,
+        ..TrafficConfig::default()
+    }
+}
+
 fn montlake_layout() -> Arc<RoundaboutLayout> {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../data/osm/montlake_roundabout.osm.pbf");
@@ -63,10 +71,7 @@ fn idm_never_drives_a_follower_into_its_leader() {
 #[test]
 fn circulating_vehicles_go_round_and_leave_at_exits() {
     let layout = montlake_layout();
-    let config = TrafficConfig {
-        level: TrafficLevel::High,
-        ..TrafficConfig::default()
-    };
+    let config = high_traffic();
     let mut world = World::new(Arc::clone(&layout), config, EgoConfig::default(), 7);
     // id -> (route, last s, time entered the ring, seconds stopped in the ring so far)
     let mut seen: BTreeMap<u32, (usize, f64, Option<f64>, f64)> = BTreeMap::new();
@@ -280,10 +285,7 @@ fn traffic_flows_on_the_shared_roundabout_maps() {
 #[test]
 fn the_ring_never_gridlocks() {
     let layout = montlake_layout();
-    let config = TrafficConfig {
-        level: TrafficLevel::High,
-        ..TrafficConfig::default()
-    };
+    let config = high_traffic();
     for seed in 0..SEEDS {
         let mut world = World::new(Arc::clone(&layout), config, EgoConfig::default(), seed);
         // id -> seconds stood still in the ring without a break

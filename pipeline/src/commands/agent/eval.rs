@@ -15,7 +15,7 @@ use serde::Serialize;
 use sim::baselines::Baseline;
 use sim::eval::{
     Condition, ConditionResult, EVAL_STAGE, EvalOptions, evaluate_episodes, markdown_table,
-    summarise,
+    summarise_conditions,
 };
 use sim::seed::derive_seed;
 use sim::tasks::insertion::EpisodeSummary;
@@ -199,12 +199,10 @@ fn eval_insertion(
     let rows: Vec<(String, Vec<ConditionResult>)> = episodes_of
         .iter()
         .map(|(name, per_condition)| {
-            let results = conditions
-                .iter()
-                .zip(per_condition)
-                .map(|(condition, episodes)| summarise(*condition, episodes))
-                .collect();
-            (name.clone(), results)
+            (
+                name.clone(),
+                summarise_conditions(&conditions, per_condition),
+            )
         })
         .collect();
     let episodes_csv = episodes_csv(&episodes_of, &conditions);
@@ -419,12 +417,7 @@ fn episodes_csv(
     for (policy, per_condition) in episodes_of {
         for (condition, episodes) in conditions.iter().zip(per_condition) {
             for (k, e) in episodes.iter().enumerate() {
-                let outcome = match e.outcome {
-                    sim::Outcome::Reached => "reached",
-                    sim::Outcome::Crashed => "crashed",
-                    sim::Outcome::OffRoad => "off_road",
-                    sim::Outcome::TimeOver => "time_over",
-                };
+                let outcome = e.outcome.name();
                 let enter = e
                     .time_to_enter_s
                     .map_or(String::new(), |t| format!("{t:.1}"));
