@@ -68,6 +68,10 @@ pub struct DqnConfig {
     pub gamma: f32,
     pub loss: TdLoss,
     pub learning_rate: f64,
+    /// When set, the learning rate falls linearly from `learning_rate` to this over the
+    /// run (by transitions), so the last checkpoints move less and the greedy policy stops
+    /// swinging between checkpoints; unset, it stays at `learning_rate`.
+    pub learning_rate_end: Option<f64>,
     pub adam_epsilon: f32,
     /// Each parameter tensor's gradient is scaled down to at most this L2 norm (burn's
     /// per-tensor clipping); 0 turns clipping off.
@@ -97,6 +101,7 @@ impl Default for DqnConfig {
             gamma: 0.99,
             loss: TdLoss::Huber { delta: 1.0 },
             learning_rate: 1e-4,
+            learning_rate_end: None,
             adam_epsilon: 1e-8,
             gradient_clip_norm: 10.0,
             batch_size: 32,
@@ -213,6 +218,18 @@ impl EpsilonSchedule {
 }
 
 impl DqnConfig {
+    /// The learning rate after `steps` transitions: `learning_rate`, or the linear fall to
+    /// `learning_rate_end` over `total_steps` (held at the end value after them).
+    pub fn learning_rate_at(&self, steps: u64) -> f64 {
+        match self.learning_rate_end {
+            None => self.learning_rate,
+            Some(end) => {
+                let progress = (steps as f64 / self.total_steps.max(1) as f64).min(1.0);
+                self.learning_rate + (end - self.learning_rate) * progress
+            }
+        }
+    }
+
     pub fn validate(&self) -> Result<(), ModelError> {
         let problem = |m: &str| Err(ModelError::Config(m.into()));
         if self.envs == 0 || self.batch_size == 0 || self.train_frequency == 0 || self.n_step == 0 {
@@ -226,6 +243,11 @@ impl DqnConfig {
         }
         if !(self.learning_rate > 0.0 && self.learning_rate.is_finite()) {
             return problem("learning_rate must be positive");
+        }
+        if let Some(end) = self.learning_rate_end
+            && !(end >= 0.0 && end.is_finite())
+        {
+            return problem("learning_rate_end must be 0 or positive");
         }
         if self.gradient_clip_norm.is_nan() || self.gradient_clip_norm < 0.0 {
             return problem("gradient_clip_norm must be 0 (off) or positive");
@@ -839,7 +861,7 @@ impl<'a> Learner<'a> {
         let gradients = GradientsParams::from_grads(loss.backward(), &self.online);
         self.online = self
             .optimizer
-            .step(config.learning_rate, self.online.clone(), gradients);
+            .step(self.learning_rate(), self.online.clone(), gradients);
 
         let scalar =
             |t: Tensor<1>| f64::from(tensor_values(t).first().copied().unwrap_or(f32::NAN));
@@ -853,6 +875,11 @@ impl<'a> Learner<'a> {
             regulariser: regulariser.map(scalar),
             mean_q: q_taken.iter().map(|&v| f64::from(v)).sum::<f64>() / b as f64,
         }
+    }
+
+    /// The learning rate at the run's current transition count.
+    fn learning_rate(&self) -> f64 {
+        self.config.learning_rate_at(self.state.steps)
     }
 
     /// Copies the online network into the target network (a hard target update).
@@ -1154,6 +1181,30 @@ mod tests {
         assert_eq!(EpsilonSchedule::ITS.value(0, 4_610), 0.1);
         // AIT: ×0.99999 per step.
         assert!((EpsilonSchedule::AIT.value(100_000, 0) - 0.99999f64.powi(100_000)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn learning_rate_constant_or_falling_linearly_over_the_run() -> Result<(), String> {
+        let constant = DqnConfig {
+            total_steps: 1_000,
+            learning_rate: 1e-3,
+            ..DqnConfig::default()
+        };
+        assert_eq!(constant.learning_rate_at(0), 1e-3);
+        assert_eq!(constant.learning_rate_at(5_000), 1e-3);
+        let falling: DqnConfig =
+            toml::from_str("total_steps = 1000\nlearning_rate = 0.001\nlearning_rate_end = 0.0001")
+                .map_err(|e| e.to_string())?;
+        assert_eq!(falling.learning_rate_at(0), 1e-3);
+        assert!((falling.learning_rate_at(500) - 5.5e-4).abs() < 1e-15);
+        assert!((falling.learning_rate_at(1_000) - 1e-4).abs() < 1e-15);
+        assert!((falling.learning_rate_at(2_000) - 1e-4).abs() < 1e-15);
+        let negative = DqnConfig {
+            learning_rate_end: Some(-1.0),
+            ..DqnConfig::default()
+        };
+        assert!(negative.validate().is_err());
+        Ok(())
     }
 
     #[test]
