@@ -69,8 +69,8 @@ pub struct DqnConfig {
     pub loss: TdLoss,
     pub learning_rate: f64,
     /// When set, the learning rate falls linearly from `learning_rate` to this over the
-    /// run (by transitions), so the last checkpoints move less and the greedy policy stops
-    /// swinging between checkpoints; unset, it stays at `learning_rate`.
+    /// run's `total_steps` transitions, so the late checkpoints move less; unset, it stays at
+    /// `learning_rate`. Online training only (offline training refuses it).
     pub learning_rate_end: Option<f64>,
     pub adam_epsilon: f32,
     /// Each parameter tensor's gradient is scaled down to at most this L2 norm (burn's
@@ -859,9 +859,11 @@ impl<'a> Learner<'a> {
         };
 
         let gradients = GradientsParams::from_grads(loss.backward(), &self.online);
-        self.online = self
-            .optimizer
-            .step(self.learning_rate(), self.online.clone(), gradients);
+        self.online = self.optimizer.step(
+            config.learning_rate_at(self.state.steps),
+            self.online.clone(),
+            gradients,
+        );
 
         let scalar =
             |t: Tensor<1>| f64::from(tensor_values(t).first().copied().unwrap_or(f32::NAN));
@@ -875,11 +877,6 @@ impl<'a> Learner<'a> {
             regulariser: regulariser.map(scalar),
             mean_q: q_taken.iter().map(|&v| f64::from(v)).sum::<f64>() / b as f64,
         }
-    }
-
-    /// The learning rate at the run's current transition count.
-    fn learning_rate(&self) -> f64 {
-        self.config.learning_rate_at(self.state.steps)
     }
 
     /// Copies the online network into the target network (a hard target update).

@@ -327,6 +327,13 @@ pub fn train(
             dqn.batch_size
         )));
     }
+    if dqn.learning_rate_end.is_some() {
+        // The fall is counted in environment transitions, and offline training has none.
+        return Err(ModelError::Config(
+            "offline training keeps the learning rate constant: remove learning_rate_end from [agent.dqn]"
+                .into(),
+        ));
+    }
     let shape = AgentShape {
         channels: set.spec.channels,
         height: set.spec.height,
@@ -523,6 +530,11 @@ mod tests {
             ..OfflineConfig::default()
         };
         assert!(train(&set, &config(), &bad, 1, &device, &mut |_| true).is_err());
+        let falling_rate = DqnConfig {
+            learning_rate_end: Some(1e-5),
+            ..config()
+        };
+        assert!(train(&set, &falling_rate, &offline, 1, &device, &mut |_| true).is_err());
         Ok(())
     }
 }
