@@ -185,3 +185,16 @@ fn validation_without_checkpoints_is_refused() {
     let (agent, out) = train_obstacle(dir.path(), "agent", &config);
     common::assert_refused(&out, "checkpoint_every of [agent.dqn] is 0", &agent);
 }
+
+#[test]
+fn validation_deciding_at_another_rate_is_for_insertion_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let config =
+        format!("{SMALL_OBSTACLE_RUN}[agent.validation]\nepisodes = 6\naction_repeat = 1\n");
+    let (agent, out) = train_obstacle(dir.path(), "agent", &config);
+    common::assert_refused(
+        &out,
+        "[agent.validation] action_repeat is for roundabout-insertion agents",
+        &agent,
+    );
+}

@@ -408,6 +408,13 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         &[],
         "`action_repeat = 3`: it decides every 3 steps",
     );
+    let spaced_config = tmp.path().join("frame_steps.toml");
+    std::fs::write(&spaced_config, "[agent.task]\nframe_steps = 3\n").unwrap();
+    refused(
+        &["--config".as_ref(), spaced_config.as_os_str()],
+        &[],
+        "`frame_steps = 3`: its frames are stacked 3 steps apart",
+    );
 }
 
 /// Topic roles (issue 7): detected on the Husky drive (odometry and GPS, no objects), a

@@ -517,24 +517,39 @@ pub fn stroke(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], width: f64
     }
 }
 
-/// The last `stack` frames of an episode, oldest first.
+/// The last `stack` frames of an episode, oldest first, `spacing` pushes apart (1: the
+/// last `stack` pushes). A wider spacing lets a policy decide at every push while its
+/// frames stay as far apart in time as when it was trained deciding every `spacing` pushes.
 #[derive(Debug, Clone)]
 pub struct FrameStack {
     frame_len: usize,
     stack: usize,
-    /// Ring buffer of frames; `head` is the oldest.
+    spacing: usize,
+    /// Ring buffer of the last `(stack − 1) · spacing + 1` frames; `head` is the oldest.
     frames: Vec<u8>,
     head: usize,
 }
 
 impl FrameStack {
     pub fn new(frame_len: usize, stack: usize) -> Self {
+        Self::spaced(frame_len, stack, 1)
+    }
+
+    /// A stack whose frames are `spacing` pushes apart (at least 1).
+    pub fn spaced(frame_len: usize, stack: usize, spacing: usize) -> Self {
+        let (stack, spacing) = (stack.max(1), spacing.max(1));
+        let slots = (stack - 1) * spacing + 1;
         FrameStack {
             frame_len,
-            stack: stack.max(1),
-            frames: vec![0; frame_len * stack.max(1)],
+            stack,
+            spacing,
+            frames: vec![0; frame_len * slots],
             head: 0,
         }
+    }
+
+    fn slots(&self) -> usize {
+        self.frames.len() / self.frame_len.max(1)
     }
 
     /// Starts an episode: every slot holds `frame`.
@@ -549,21 +564,32 @@ impl FrameStack {
     pub fn push(&mut self, frame: &[u8]) {
         let at = self.head * self.frame_len;
         self.frames[at..at + self.frame_len].copy_from_slice(frame);
-        self.head = (self.head + 1) % self.stack;
+        self.head = (self.head + 1) % self.slots();
     }
 
     /// The stack, oldest frame first, into `out` (`stack × frame_len` bytes).
     pub fn write(&self, out: &mut Vec<u8>) {
         out.clear();
-        out.reserve(self.frames.len());
-        let split = self.head * self.frame_len;
-        out.extend_from_slice(&self.frames[split..]);
-        out.extend_from_slice(&self.frames[..split]);
+        if self.spacing == 1 {
+            out.reserve(self.frames.len());
+            let split = self.head * self.frame_len;
+            out.extend_from_slice(&self.frames[split..]);
+            out.extend_from_slice(&self.frames[..split]);
+            return;
+        }
+        out.reserve(self.stack * self.frame_len);
+        let slots = self.slots();
+        for k in 0..self.stack {
+            // The oldest slot is `head`; the stacked frames are every `spacing`-th from it.
+            let i = (self.head + k * self.spacing) % slots;
+            out.extend_from_slice(&self.frames[i * self.frame_len..(i + 1) * self.frame_len]);
+        }
     }
 
     /// The newest frame.
     pub fn newest(&self) -> &[u8] {
-        let i = (self.head + self.stack - 1) % self.stack;
+        let slots = self.slots();
+        let i = (self.head + slots - 1) % slots;
         &self.frames[i * self.frame_len..(i + 1) * self.frame_len]
     }
 }
@@ -618,6 +644,36 @@ mod tests {
         s.write(&mut out);
         assert_eq!(out, vec![2, 2, 3, 3, 4, 4]);
         assert_eq!(s.newest(), &[4, 4]);
+    }
+
+    /// Frames two pushes apart: the stack is what a stack of one push per two steps would
+    /// hold at every other push, and in between it moves on by one step.
+    #[test]
+    fn spaced_frame_stack_picks_every_spacing_th_frame() {
+        let mut s = FrameStack::spaced(1, 3, 2);
+        let mut out = Vec::new();
+        s.reset(&[0]);
+        s.write(&mut out);
+        assert_eq!(out, vec![0, 0, 0]);
+        for f in 1..=5u8 {
+            s.push(&[f]);
+        }
+        s.write(&mut out);
+        assert_eq!(out, vec![1, 3, 5]);
+        assert_eq!(s.newest(), &[5]);
+        s.push(&[6]);
+        s.write(&mut out);
+        assert_eq!(out, vec![2, 4, 6]);
+        // Spacing 1 is the plain stack.
+        let (mut plain, mut spaced) = (FrameStack::new(1, 3), FrameStack::spaced(1, 3, 1));
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for f in 0..7u8 {
+            plain.push(&[f]);
+            spaced.push(&[f]);
+            plain.write(&mut a);
+            spaced.write(&mut b);
+            assert_eq!(a, b);
+        }
     }
 
     /// A straight east-going lane: ahead of a north-facing ego it shows on the right.

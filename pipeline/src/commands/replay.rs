@@ -510,7 +510,8 @@ impl Views {
 
 /// Projected logs give the bird's-eye layers and the speed of every log frame, not the rule
 /// inputs ([`InsertionConfig::rule_inputs`]) nor frames stacked several world steps apart
-/// ([`InsertionConfig::action_repeat`]): one clear error for a task that asks for either.
+/// ([`InsertionConfig::action_repeat`], [`InsertionConfig::frame_steps`]): one clear error
+/// for a task that asks for any of them.
 pub(crate) fn refuse_unprojectable(config: &InsertionConfig, whose: &str) -> Result<()> {
     if config.rule_inputs {
         return Err(CliError::new(
@@ -527,6 +528,16 @@ pub(crate) fn refuse_unprojectable(config: &InsertionConfig, whose: &str) -> Res
                 config.action_repeat, config.action_repeat
             ),
             "use a task with action_repeat = 1 (the default) for logs",
+        )
+        .into());
+    }
+    if let Some(frame_steps) = config.frame_steps.filter(|&f| f != 1) {
+        return Err(CliError::new(
+            format!(
+                "{whose} has `frame_steps = {frame_steps}`: its frames are stacked {frame_steps} \
+                 steps apart, and projected logs stack consecutive frames"
+            ),
+            "use a task without frame_steps (the default) for logs",
         )
         .into());
     }

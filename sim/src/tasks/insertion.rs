@@ -130,6 +130,41 @@ pub struct InsertionConfig {
     /// summed over them, and a frame is drawn once per decision, so the frame stack spans
     /// `action_repeat` steps per frame. 1 (the default) decides every step, as the study did.
     pub action_repeat: usize,
+    /// World steps between the stacked frames; unset (the default), `action_repeat`: one
+    /// frame per decision. A multiple of `action_repeat` stacks frames that many decisions
+    /// apart; otherwise a frame is drawn every world step and the stack takes every
+    /// `frame_steps`-th. So an agent trained deciding every 3 steps can decide every step on
+    /// frames as far apart as it was trained on, and a stack can span more time.
+    pub frame_steps: Option<usize>,
+}
+
+impl InsertionConfig {
+    /// The task deciding every `steps` world steps, on frames stacked as far apart as
+    /// before: what an agent trained with this config sees when it re-decides more (or
+    /// less) often.
+    pub fn deciding_every(&self, steps: usize) -> InsertionConfig {
+        InsertionConfig {
+            frame_steps: Some(self.frame_steps.unwrap_or(self.action_repeat)),
+            action_repeat: steps,
+            ..self.clone()
+        }
+    }
+
+    /// Whether a frame is drawn every world step rather than once per decision: when the
+    /// stacked frames are not a whole number of decisions apart.
+    fn frames_every_step(&self) -> bool {
+        self.frame_steps
+            .is_some_and(|f| f % self.action_repeat.max(1) != 0)
+    }
+
+    /// How many drawn frames apart the stacked ones are.
+    fn frame_spacing(&self) -> usize {
+        match self.frame_steps {
+            Some(f) if self.frames_every_step() => f,
+            Some(f) => f / self.action_repeat.max(1),
+            None => 1,
+        }
+    }
 }
 
 impl Default for InsertionConfig {
@@ -152,6 +187,7 @@ impl Default for InsertionConfig {
             speed_scale_mps: 15.0,
             rule_inputs: false,
             action_repeat: 1,
+            frame_steps: None,
         }
     }
 }
@@ -270,6 +306,11 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
             "action_repeat = 0: at least one world step per decision".to_owned(),
         ));
     }
+    if c.frame_steps == Some(0) {
+        return Err(SimError::Config(
+            "frame_steps = 0: stacked frames must be at least one world step apart".to_owned(),
+        ));
+    }
     if let Some(a) = c.aggressiveness
         && !(0.0..=1.0).contains(&a)
     {
@@ -336,7 +377,7 @@ pub struct RoundaboutInsertion {
 impl RoundaboutInsertion {
     pub fn new(setup: Arc<InsertionSetup>) -> Self {
         let config = setup.config.clone();
-        let view = EgoView::new(&config.observation);
+        let view = EgoView::spaced(&config.observation, config.frame_spacing());
         let follower = Driver::new(&config.traffic.drivers, 0.5);
         RoundaboutInsertion {
             setup,
@@ -555,7 +596,14 @@ impl RoundaboutInsertion {
 
     /// Draws the current scene: the first frame of an episode, or the next one.
     fn render(&mut self, first: bool) {
-        let scene = self.world.as_ref().and_then(|world| {
+        let world = self.world.take();
+        self.draw(world.as_ref(), first);
+        self.world = world;
+    }
+
+    /// Draws `world`'s scene into the view.
+    fn draw(&mut self, world: Option<&World>, first: bool) {
+        let scene = world.and_then(|world| {
             ego_scene(
                 self.setup.map(),
                 world,
@@ -698,6 +746,9 @@ impl Env for RoundaboutInsertion {
             self.last_action = action;
             reward += r;
             outcome = o;
+            if self.config.frames_every_step() {
+                self.draw(Some(&world), false);
+            }
             if outcome.is_some() {
                 break;
             }
@@ -705,7 +756,9 @@ impl Env for RoundaboutInsertion {
         self.world = Some(world);
         self.outcome = outcome;
         self.episode_return += reward;
-        self.render(false);
+        if !self.config.frames_every_step() {
+            self.render(false);
+        }
         Step {
             observation: self.observation(),
             reward: reward as f32,
@@ -809,5 +862,72 @@ mod tests {
             cut_in < free - 1.0 && cut_in < 0.0,
             "Permitted gives {cut_in} m/s² towards a car cutting in, {free} m/s² without it"
         );
+    }
+
+    /// Deciding every step on frames 3 steps apart, with the actions held for 3 steps, sees
+    /// and earns exactly what deciding every 3 steps does (how the stack moves in between is
+    /// `render::tests::spaced_frame_stack_picks_every_spacing_th_frame`).
+    #[test]
+    fn deciding_every_step_keeps_the_trained_frame_spacing() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../data/osm/montlake_roundabout.osm.pbf");
+        let map = Arc::new(maps::import_file(&path, &Default::default()).expect("montlake"));
+        // Frames a decision apart (drawn per decision), two decisions apart (per decision,
+        // every other one stacked) and 4 steps apart (drawn every step).
+        for frame_steps in [None, Some(6), Some(4)] {
+            let mut trained = InsertionConfig {
+                action_repeat: 3,
+                frame_steps,
+                ..InsertionConfig::default()
+            };
+            trained.observation.width = 42;
+            trained.observation.height = 42;
+            trained.observation.stack = 3;
+            let every_step = trained.deciding_every(1);
+            assert_eq!(every_step.action_repeat, 1);
+            assert_eq!(every_step.frame_steps, Some(frame_steps.unwrap_or(3)));
+            let env = |config: &InsertionConfig| {
+                let setup = InsertionSetup::new(Arc::clone(&map), config.clone()).expect("setup");
+                let mut env = RoundaboutInsertion::new(setup);
+                env.set_traffic(TrafficLevel::High);
+                env
+            };
+            let (mut coarse, mut fine) = (env(&trained), env(&every_step));
+            assert_eq!(coarse.reset(11), fine.reset(11));
+            let actions = [Action::Caution, Action::NotPermitted, Action::Permitted];
+            for action in actions.into_iter().cycle().take(7) {
+                let want = coarse.step(action as usize);
+                let mut reward = 0.0;
+                let mut got = None;
+                for _ in 0..3 {
+                    let step = fine.step(action as usize);
+                    reward += step.reward;
+                    got = Some(step.observation);
+                }
+                assert_eq!(
+                    got.as_ref(),
+                    Some(&want.observation),
+                    "{frame_steps:?}, {action:?}"
+                );
+                assert!(
+                    (reward - want.reward).abs() < 1e-6,
+                    "{reward} against {}",
+                    want.reward
+                );
+            }
+            // The returns are summed in another order: equal up to rounding.
+            let (a, b) = (coarse.summary(), fine.summary());
+            assert!((a.episode_return - b.episode_return).abs() < 1e-9);
+            assert_eq!(
+                EpisodeSummary {
+                    episode_return: 0.0,
+                    ..a
+                },
+                EpisodeSummary {
+                    episode_return: 0.0,
+                    ..b
+                }
+            );
+        }
     }
 }

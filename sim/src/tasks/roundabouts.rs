@@ -134,9 +134,14 @@ pub struct EgoView {
 
 impl EgoView {
     pub fn new(config: &BevConfig) -> Self {
+        Self::spaced(config, 1)
+    }
+
+    /// A view whose stacked frames are `spacing` draws apart ([`FrameStack::spaced`]).
+    pub fn spaced(config: &BevConfig, spacing: usize) -> Self {
         EgoView {
             frame: Vec::new(),
-            stack: FrameStack::new(config.frame_len(), config.stack),
+            stack: FrameStack::spaced(config.frame_len(), config.stack, spacing),
             rendering: true,
             observer: None,
         }

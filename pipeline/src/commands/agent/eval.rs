@@ -157,7 +157,10 @@ fn eval_insertion(
         .into());
     }
     let task = agent.task.clone();
-    let config = task.insertion_config(&args.agent.join(super::TASK_FILE))?;
+    let mut config = task.insertion_config(&args.agent.join(super::TASK_FILE))?;
+    if let Some(steps) = args.action_repeat {
+        config = config.deciding_every(steps);
+    }
     let setup = Insertion::setup(map_path.as_deref(), &config)?;
     let map_path = map_path.unwrap_or_default();
     let spec = setup.observation_spec();
@@ -291,6 +294,16 @@ fn eval_task<K: GenericTask>(
     map: Option<PathBuf>,
     mut progress: Progress<'_>,
 ) -> Result<()> {
+    if args.action_repeat.is_some() {
+        return Err(CliError::new(
+            format!(
+                "--action-repeat is for roundabout-insertion agents; this one is {}",
+                agent.task.task.name()
+            ),
+            "leave --action-repeat out",
+        )
+        .into());
+    }
     let task = agent.task.clone();
     let config = super::tasks::task_config::<K>(&task, &args.agent.join(super::TASK_FILE))?;
     let setup = K::setup(map.as_deref(), &config)?;

@@ -193,6 +193,12 @@ pub struct EvalArgs {
     /// Greedy episodes logged to the rerun recording (medium traffic, aggressiveness 0.5).
     #[arg(long, value_name = "N", default_value_t = 2)]
     pub record_episodes: usize,
+
+    /// Roundabout insertion only: the agent decides every N world steps instead of the
+    /// `action_repeat` it was trained with, on frames stacked as far apart as in training
+    /// (`frame_steps`). 1 re-decides every 0.1 s; the baselines decide every N steps too.
+    #[arg(long, value_name = "N")]
+    pub action_repeat: Option<usize>,
 }
 
 /// `[agent]` of the `--config` file.

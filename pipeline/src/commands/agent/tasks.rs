@@ -57,6 +57,17 @@ pub trait TaskKind {
     /// One training environment.
     fn train_env(setup: &Arc<Self::Setup>, traffic: TrafficLevel) -> Self::Env;
 
+    /// The task deciding every `steps` steps on frames stacked as in `config`
+    /// (`[agent.validation] action_repeat`); only tasks that hold actions over steps can.
+    fn deciding_every(config: &Self::Config, steps: usize) -> Result<Self::Config> {
+        let _ = (config, steps);
+        Err(CliError::new(
+            "[agent.validation] action_repeat is for roundabout-insertion agents",
+            "leave action_repeat out of [agent.validation]",
+        )
+        .into())
+    }
+
     /// Validates `policy` (see [`super::validation`]): `episodes` greedy episodes per
     /// validation condition, drawn as an evaluation with `seed` draws them; per condition,
     /// the share that reached the goal. Never on conditions held out for evaluation.
@@ -198,6 +209,10 @@ impl TaskKind for Insertion {
 
     fn map(setup: &InsertionSetup) -> Option<&Map> {
         Some(setup.map())
+    }
+
+    fn deciding_every(config: &InsertionConfig, steps: usize) -> Result<InsertionConfig> {
+        Ok(config.deciding_every(steps))
     }
 
     fn train_env(setup: &Arc<InsertionSetup>, traffic: TrafficLevel) -> RoundaboutInsertion {

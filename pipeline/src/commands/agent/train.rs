@@ -127,7 +127,14 @@ fn train_task<K: TaskKind>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let validation = if validation_config.is_off() {
         None
     } else {
-        let (setup, episodes) = (Arc::clone(&setup), validation_config.episodes);
+        let setup = match validation_config.action_repeat {
+            Some(steps) => K::setup(
+                args.map.as_deref(),
+                &K::deciding_every(&task_config, steps)?,
+            )?,
+            None => Arc::clone(&setup),
+        };
+        let episodes = validation_config.episodes;
         let validation_seed = validation_seed(seed);
         let run = Box::new(move |policy: &QPolicy| {
             K::validate(&setup, policy, traffic, episodes, validation_seed)

@@ -38,6 +38,11 @@ pub struct ValidationConfig {
     /// Greedy episodes per validation condition at every checkpoint; 0 (the default)
     /// turns validation off and the final network is the agent.
     pub episodes: usize,
+    /// Roundabout insertion only: validate deciding every this many world steps (frames
+    /// stacked as in training), as `agent eval --action-repeat` will evaluate; unset, as
+    /// trained.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub action_repeat: Option<usize>,
 }
 
 impl ValidationConfig {
