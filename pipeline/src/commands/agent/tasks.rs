@@ -59,8 +59,7 @@ pub trait TaskKind {
 
     /// The task deciding every `steps` steps on frames stacked as in `config`
     /// (`[agent.validation] action_repeat`); only tasks that hold actions over steps can.
-    fn deciding_every(config: &Self::Config, steps: usize) -> Result<Self::Config> {
-        let _ = (config, steps);
+    fn deciding_every(_config: &Self::Config, _steps: usize) -> Result<Self::Config> {
         Err(CliError::new(
             "[agent.validation] action_repeat is for roundabout-insertion agents",
             "leave action_repeat out of [agent.validation]",
