@@ -372,8 +372,6 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
 
     // Refused before anything is written: offline learning is for roundabout insertion only,
     // and logs cannot give the rule inputs nor frames several steps apart.
-    let rule_config = tmp.path().join("rule_inputs.toml");
-    std::fs::write(&rule_config, "[agent.task]\nrule_inputs = true\n").unwrap();
     let refused = |global: &[&OsStr], task: &[&str], message: &str| {
         let bad = tmp.path().join("bad");
         let out = pipeline()
@@ -396,25 +394,28 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         &["--task", "route-following"],
         "--offline learns roundabout insertion",
     );
-    refused(
-        &["--config".as_ref(), rule_config.as_os_str()],
-        &[],
-        "`rule_inputs = true`, which projected logs cannot give",
-    );
-    let repeat_config = tmp.path().join("action_repeat.toml");
-    std::fs::write(&repeat_config, "[agent.task]\naction_repeat = 3\n").unwrap();
-    refused(
-        &["--config".as_ref(), repeat_config.as_os_str()],
-        &[],
-        "`action_repeat = 3`: it decides every 3 steps",
-    );
-    let spaced_config = tmp.path().join("frame_steps.toml");
-    std::fs::write(&spaced_config, "[agent.task]\nframe_steps = 3\n").unwrap();
-    refused(
-        &["--config".as_ref(), spaced_config.as_os_str()],
-        &[],
-        "`frame_steps = 3`: its frames are stacked 3 steps apart",
-    );
+    // An `[agent.task]` setting (file name, TOML line) and the refusal it gets.
+    for (name, setting, message) in [
+        (
+            "rule_inputs",
+            "rule_inputs = true",
+            "`rule_inputs = true`, which projected logs cannot give",
+        ),
+        (
+            "action_repeat",
+            "action_repeat = 3",
+            "`action_repeat = 3`: it decides every 3 steps",
+        ),
+        (
+            "frame_steps",
+            "frame_steps = 3",
+            "`frame_steps = 3`: its frames are stacked 3 steps apart",
+        ),
+    ] {
+        let config = tmp.path().join(format!("{name}.toml"));
+        std::fs::write(&config, format!("[agent.task]\n{setting}\n")).unwrap();
+        refused(&["--config".as_ref(), config.as_os_str()], &[], message);
+    }
 }
 
 /// Topic roles (issue 7): detected on the Husky drive (odometry and GPS, no objects), a

@@ -537,19 +537,20 @@ impl FrameStack {
 
     /// A stack whose frames are `spacing` pushes apart (at least 1).
     pub fn spaced(frame_len: usize, stack: usize, spacing: usize) -> Self {
-        let (stack, spacing) = (stack.max(1), spacing.max(1));
-        let slots = (stack - 1) * spacing + 1;
-        FrameStack {
+        let mut frame_stack = FrameStack {
             frame_len,
-            stack,
-            spacing,
-            frames: vec![0; frame_len * slots],
+            stack: stack.max(1),
+            spacing: spacing.max(1),
+            frames: Vec::new(),
             head: 0,
-        }
+        };
+        frame_stack.frames = vec![0; frame_len * frame_stack.slots()];
+        frame_stack
     }
 
+    /// Frames kept: enough to reach back `(stack − 1) · spacing` pushes.
     fn slots(&self) -> usize {
-        self.frames.len() / self.frame_len.max(1)
+        (self.stack - 1) * self.spacing + 1
     }
 
     /// Starts an episode: every slot holds `frame`.
@@ -570,13 +571,6 @@ impl FrameStack {
     /// The stack, oldest frame first, into `out` (`stack × frame_len` bytes).
     pub fn write(&self, out: &mut Vec<u8>) {
         out.clear();
-        if self.spacing == 1 {
-            out.reserve(self.frames.len());
-            let split = self.head * self.frame_len;
-            out.extend_from_slice(&self.frames[split..]);
-            out.extend_from_slice(&self.frames[..split]);
-            return;
-        }
         out.reserve(self.stack * self.frame_len);
         let slots = self.slots();
         for k in 0..self.stack {
