@@ -16,8 +16,14 @@ training runs use (`models::dqn::Learner::learn`). The rounds alternate (ours, P
 ours, ...) so both see the same machine state; the figure is the median over all timed steps
 of each side (after warm-up steps in every round).
 
+With `--devices cpu,libtorch` ours also runs on burn's LibTorch backend (PyTorch's kernels
+under burn's autodiff and optimiser), from a build with `--features libtorch` in
+`$LIBTORCH_TARGET_DIR` (default target/libtorch) and the libtorch of `$LIBTORCH`
+(scripts/setup_libtorch.sh; docs/gpu.md).
+
 Usage (from the repository root):
-    python3 scripts/bench_qnet.py [--rounds 3] [--steps 40] [--out docs/benchmarks/qnet_step.json]
+    python3 scripts/bench_qnet.py [--rounds 3] [--steps 40] [--devices cpu[,libtorch]]
+        [--out docs/benchmarks/qnet_step.json]
 Needs: torch (CPU is enough).
 """
 import argparse
@@ -33,6 +39,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 TARGET = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
 BINARY = TARGET / "release" / "examples" / "bench_qnet_step"
+LIBTORCH_TARGET = Path(os.environ.get("LIBTORCH_TARGET_DIR", ROOT / "target" / "libtorch"))
+LIBTORCH_BINARY = LIBTORCH_TARGET / "release" / "examples" / "bench_qnet_step"
 THREADS = 2
 BATCH = 32
 SHAPE = (16, 84, 84)
@@ -40,17 +48,25 @@ SCALARS = 6
 ACTIONS = 3
 
 
-def build():
-    subprocess.run(
-        ["cargo", "build", "--release", "-p", "models", "--example", "bench_qnet_step"],
-        cwd=ROOT,
-        check=True,
-    )
+def build(devices):
+    cmd = ["cargo", "build", "--release", "-p", "models", "--example", "bench_qnet_step"]
+    subprocess.run(cmd, cwd=ROOT, check=True)
+    if "libtorch" in devices:
+        env = dict(os.environ, CARGO_TARGET_DIR=str(LIBTORCH_TARGET))
+        subprocess.run(cmd + ["--features", "libtorch"], cwd=ROOT, check=True, env=env)
 
 
-def ours(network, steps, warmup):
+def ours(network, steps, warmup, device):
     env = dict(os.environ, RAYON_NUM_THREADS=str(THREADS))
-    cmd = [str(BINARY), "--network", network, "--batch", str(BATCH), "--steps", str(steps), "--warmup", str(warmup)]
+    binary = BINARY
+    if device == "libtorch":
+        if "LIBTORCH" not in os.environ:
+            sys.exit("--devices libtorch needs LIBTORCH set: eval \"$(scripts/setup_libtorch.sh)\"")
+        binary = LIBTORCH_BINARY
+        lib = str(Path(os.environ["LIBTORCH"]) / "lib")
+        env["LD_LIBRARY_PATH"] = lib + ":" + env.get("LD_LIBRARY_PATH", "")
+    cmd = [str(binary), "--network", network, "--batch", str(BATCH), "--steps", str(steps), "--warmup", str(warmup),
+           "--device", device]
     r = subprocess.run(cmd, capture_output=True, env=env, text=True)
     if r.returncode != 0:
         sys.exit(f"failed: {' '.join(cmd)}\n{r.stderr}")
@@ -146,43 +162,53 @@ def main():
     ap.add_argument("--networks", default="default,its")
     ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "qnet_step.json"))
     ap.add_argument("--no-build", action="store_true")
+    ap.add_argument("--devices", default="cpu", help="our backends: cpu (flex) and/or libtorch")
     args = ap.parse_args()
     import torch
 
+    devices = args.devices.split(",")
     if not args.no_build:
-        build()
+        build(devices)
     results = []
     for network in args.networks.split(","):
-        ours_times, torch_times, rounds = [], [], []
+        ours_times = {d: [] for d in devices}
+        torch_times, rounds = [], []
         for r in range(args.rounds):
-            o = ours(network, args.steps, args.warmup)
+            round_ = {}
+            for d in devices:
+                o = ours(network, args.steps, args.warmup, d)
+                ours_times[d] += o["times_ms"]
+                round_[f"ours_{d}_median_ms"] = statistics.median(o["times_ms"])
             t = torch_step_times(network, args.steps, args.warmup)
-            ours_times += o["times_ms"]
             torch_times += t
-            rounds.append({"ours_median_ms": statistics.median(o["times_ms"]), "torch_median_ms": statistics.median(t)})
-            print(f"{network} round {r + 1}: burn {rounds[-1]['ours_median_ms']:.1f} ms, "
-                  f"PyTorch {rounds[-1]['torch_median_ms']:.1f} ms", file=sys.stderr)
-        ours_median = statistics.median(ours_times)
+            round_["torch_median_ms"] = statistics.median(t)
+            rounds.append(round_)
+            print(f"{network} round {r + 1}: " + ", ".join(f"{k} {v:.1f}" for k, v in round_.items()), file=sys.stderr)
         torch_median = statistics.median(torch_times)
-        results.append({
+        result = {
             "network": network,
             "batch": BATCH,
             "threads": THREADS,
-            "timed_steps_per_side": len(ours_times),
-            "burn_median_ms": round(ours_median, 2),
+            "timed_steps_per_side": len(torch_times),
             "torch_median_ms": round(torch_median, 2),
-            "torch_over_burn": round(torch_median / ours_median, 3),
             "rounds": rounds,
-        })
-        print(f"{network}: burn {ours_median:.1f} ms, PyTorch {torch_median:.1f} ms, "
-              f"PyTorch/burn = {torch_median / ours_median:.2f}")
+        }
+        for d in devices:
+            # `cpu` keeps the field names of earlier reports.
+            key = "burn" if d == "cpu" else f"burn_{d}"
+            median = statistics.median(ours_times[d])
+            result[f"{key}_median_ms"] = round(median, 2)
+            result[f"torch_over_{key}"] = round(torch_median / median, 3)
+            print(f"{network}: {key} {median:.1f} ms, PyTorch {torch_median:.1f} ms, "
+                  f"PyTorch/{key} = {torch_median / median:.2f}")
+        results.append(result)
     report = {
         "what": "one DQN gradient step (Double DQN targets, Huber TD loss, backward, Adam), batch 32, 2 threads",
         "command": "python3 scripts/bench_qnet.py " + " ".join(sys.argv[1:]),
         "date": time.strftime("%Y-%m-%d"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_average": os.getloadavg()},
         "torch": torch.__version__,
-        "burn": "0.22.1 (flex CPU backend, simd + rayon)",
+        "burn": "0.22.1: `burn` is the flex CPU backend (simd + rayon), `burn_libtorch` its LibTorch 2.9.0 backend",
         "results": results,
     }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

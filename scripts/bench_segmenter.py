@@ -15,10 +15,15 @@ Ours is `pipeline segmenter bench --json` (release build); PyTorch's network is 
 PspNet class of scripts/segmenter_reference.py (the module the numerics test checks burn
 against), so both run the same layers.
 
+With `--libtorch-pipeline PATH` (a build with `--features libtorch`, run with the libtorch of
+`$LIBTORCH`: scripts/setup_libtorch.sh, docs/gpu.md) ours is also timed on burn's LibTorch
+backend in the same run: PyTorch's kernels under burn's layers, autodiff and Adam.
+
 Usage (from the repository root; installs torch from PyPI when missing):
     cargo build --release -p pipeline
     python3 scripts/bench_segmenter.py [--runs 20] [--threads 2] [--size 256]
-        [--pipeline target/release/pipeline] [--out docs/benchmarks/segmenter.json] [-- extra bench options]
+        [--pipeline target/release/pipeline] [--libtorch-pipeline target/libtorch/release/pipeline]
+        [--out docs/benchmarks/segmenter.json] [-- extra bench options]
 """
 import argparse
 import importlib.util
@@ -41,12 +46,17 @@ def load_reference():
     return module
 
 
-def ours(args, extra):
-    cmd = [args.pipeline, "-q", "--rerun", "off", "segmenter", "bench", "--json",
+def ours(args, extra, pipeline=None, device="cpu"):
+    env = dict(os.environ)
+    if device == "libtorch":
+        if "LIBTORCH" not in env:
+            sys.exit("--libtorch-pipeline needs LIBTORCH set: eval \"$(scripts/setup_libtorch.sh)\"")
+        env["LD_LIBRARY_PATH"] = str(Path(env["LIBTORCH"]) / "lib") + ":" + env.get("LD_LIBRARY_PATH", "")
+    cmd = [pipeline or args.pipeline, "-q", "--device", device, "--rerun", "off", "segmenter", "bench", "--json",
            "--size", str(args.size), "--batch", "1", "--threads", str(args.threads),
            "--iterations", str(args.runs), "--warmup", str(args.warmup),
            "--train-steps", str(args.train_runs), "--train-batch", str(args.train_batch)] + extra
-    r = subprocess.run(cmd, capture_output=True, text=True)
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if r.returncode != 0:
         sys.exit(f"failed ({r.returncode}): {' '.join(cmd)}\n{r.stderr}")
     return json.loads(r.stdout), cmd
@@ -116,6 +126,7 @@ def main():
     ap.add_argument("--train-batch", type=int, default=8)
     default_bin = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / "release" / "pipeline"
     ap.add_argument("--pipeline", default=str(default_bin))
+    ap.add_argument("--libtorch-pipeline", help="also time ours on burn's LibTorch backend with this build")
     ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "segmenter.json"))
     args, extra = ap.parse_known_args()
     extra = [e for e in extra if e != "--"]
@@ -135,15 +146,31 @@ def main():
         "train_batch": args.train_batch, "burn": burn, "pytorch": torch_figures,
         "inference_ratio_torch_over_burn": t_inf / b_inf, "train_step_ratio_torch_over_burn": t_tr / b_tr,
     }
+    sides = [("burn (flex)", burn)]
+    if args.libtorch_pipeline:
+        on_libtorch, libtorch_cmd = ours(args, extra, args.libtorch_pipeline, "libtorch")
+        result["burn_libtorch"] = on_libtorch
+        result["libtorch_command"] = " ".join(map(str, libtorch_cmd))
+        result["inference_ratio_torch_over_burn_libtorch"] = t_inf / on_libtorch["inference_ms"]["median"]
+        result["train_step_ratio_torch_over_burn_libtorch"] = t_tr / on_libtorch["train_step_ms"]["median"]
+        sides.append(("burn (LibTorch)", on_libtorch))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
     print(f"network: {burn['parameters']} parameters, {burn['gflops_per_image']:.2f} GFLOPs per {args.size}x{args.size} image")
-    print("| measurement | burn (flex) ms | PyTorch ms | PyTorch / burn |")
-    print("| --- | ---: | ---: | ---: |")
-    print(f"| inference {args.size}x{args.size}, batch 1, {args.threads} threads (median of {args.runs}) "
-          f"| {b_inf:.1f} | {t_inf:.1f} | {t_inf / b_inf:.2f} |")
-    print(f"| training step, batch {args.train_batch}, {args.threads} threads (median of {args.train_runs}) "
-          f"| {b_tr:.0f} | {t_tr:.0f} | {t_tr / b_tr:.2f} |")
+    names = [name for name, _ in sides]
+    print("| measurement | " + " | ".join(f"{n} ms" for n in names) + " | PyTorch ms | "
+          + " | ".join(f"PyTorch / {n}" for n in names) + " |")
+    print("| --- |" + " ---: |" * (2 * len(sides) + 1))
+    rows = [
+        (f"inference {args.size}x{args.size}, batch 1, {args.threads} threads (median of {args.runs})",
+         "inference_ms", t_inf, ".1f"),
+        (f"training step, batch {args.train_batch}, {args.threads} threads (median of {args.train_runs})",
+         "train_step_ms", t_tr, ".0f"),
+    ]
+    for label, key, theirs, fmt in rows:
+        mine = [side[key]["median"] for _, side in sides]
+        print(f"| {label} | " + " | ".join(format(m, fmt) for m in mine) + f" | {format(theirs, fmt)} | "
+              + " | ".join(f"{theirs / m:.2f}" for m in mine) + " |")
     print(f"PyTorch {torch_figures['torch']}; raw figures in {args.out}")
 
 

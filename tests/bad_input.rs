@@ -344,16 +344,17 @@ fn route_ends_far_from_the_map() {
     }
 }
 
-/// `--device cuda | wgpu` in a build without that backend: one clear error saying how to
+/// `--device cuda | wgpu | libtorch` in a build without that backend: one clear error saying how to
 /// rebuild, before any work (no output folder).
 #[test]
-fn a_gpu_this_build_lacks_is_refused_with_the_rebuild_command() {
+fn a_backend_this_build_lacks_is_refused_with_the_rebuild_command() {
     let tmp = tempfile::tempdir().unwrap();
     let osm = tmp.path().join("small.osm");
     std::fs::write(&osm, SMALL_OSM).unwrap();
     for (device, built) in [
         ("cuda", cfg!(feature = "cuda")),
         ("wgpu", cfg!(feature = "wgpu")),
+        ("libtorch", cfg!(feature = "libtorch")),
     ] {
         if built {
             println!("skipped: this build has {device}");

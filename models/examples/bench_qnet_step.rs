@@ -7,8 +7,9 @@
 //! the Huber TD loss, backward, Adam. Input: `[batch, 16, 84, 84]` layers (4 layers × 4
 //! frames) and 6 scalars, 3 actions; the batch is random and rebuilt outside the timing.
 //!
-//! Usage: `bench_qnet_step [--network default|its] [--batch 32] [--steps 60] [--warmup 5]`;
-//! prints one JSON object.
+//! Usage: `bench_qnet_step [--network default|its] [--batch 32] [--steps 60] [--warmup 5]
+//! [--device cpu|libtorch]`; prints one JSON object. `libtorch` needs a build with
+//! `--features libtorch` (docs/gpu.md); its threads are capped at `RAYON_NUM_THREADS` too.
 
 #![allow(clippy::print_stdout, clippy::print_stderr)]
 
@@ -59,6 +60,24 @@ fn main() {
     let batch_size: usize = arg(&args, "--batch", 32);
     let steps: usize = arg(&args, "--steps", 60);
     let warmup: usize = arg(&args, "--warmup", 5);
+    let device_name: String = arg(&args, "--device", "cpu".to_owned());
+    let (choice, framework) = match device_name.as_str() {
+        "cpu" => (models::DeviceChoice::Cpu, "burn 0.22.1 flex"),
+        "libtorch" => (models::DeviceChoice::LibTorch, "burn 0.22.1 libtorch"),
+        other => {
+            eprintln!("unknown --device {other} (cpu or libtorch)");
+            std::process::exit(2);
+        }
+    };
+    let device = match models::device(choice) {
+        Ok(d) => d,
+        Err(e) => {
+            eprintln!("--device {device_name}: {e}: build with --features {device_name}");
+            std::process::exit(2);
+        }
+    };
+    let threads = rayon::current_num_threads();
+    models::set_network_threads(threads);
     let Some(network_config) = QNetworkConfig::preset(&network) else {
         eprintln!("unknown --network {network} (default or its)");
         std::process::exit(2);
@@ -77,7 +96,6 @@ fn main() {
         scalars: 6,
         actions: 3,
     };
-    let device = models::cpu_device();
     let mut learner = match Learner::new(&config, &shape, 0, &device) {
         Ok(l) => l,
         Err(e) => {
@@ -105,9 +123,8 @@ fn main() {
     } else {
         sorted[sorted.len() / 2]
     };
-    let threads = rayon::current_num_threads();
     println!(
-        "{{\"framework\": \"burn 0.22.1 flex\", \"network\": \"{network}\", \"batch\": {batch_size}, \"threads\": {threads}, \
+        "{{\"framework\": \"{framework}\", \"network\": \"{network}\", \"batch\": {batch_size}, \"threads\": {threads}, \
          \"steps\": {steps}, \"median_ms\": {median:.3}, \"times_ms\": {times_ms:?}, \"last_loss\": {:.6}}}",
         losses.last().copied().unwrap_or(f64::NAN)
     );

@@ -51,6 +51,9 @@ pub enum DeviceChoice {
     Cuda,
     /// The default wgpu adapter: Vulkan, Metal or DX12 (builds with the `wgpu` feature).
     Wgpu,
+    /// burn's LibTorch backend on the CPU: PyTorch's kernels (builds with the `libtorch`
+    /// feature).
+    LibTorch,
 }
 
 impl DeviceChoice {
@@ -60,6 +63,7 @@ impl DeviceChoice {
             DeviceChoice::Cpu => None,
             DeviceChoice::Cuda => Some("cuda"),
             DeviceChoice::Wgpu => Some("wgpu"),
+            DeviceChoice::LibTorch => Some("libtorch"),
         }
     }
 
@@ -69,8 +73,19 @@ impl DeviceChoice {
             DeviceChoice::Cpu => true,
             DeviceChoice::Cuda => cfg!(feature = "cuda"),
             DeviceChoice::Wgpu => cfg!(feature = "wgpu"),
+            DeviceChoice::LibTorch => cfg!(feature = "libtorch"),
         }
     }
+}
+
+/// Caps the threads the networks use for their own work, where the backend has a pool of its
+/// own: LibTorch's intra-op threads. burn's flex backend has none; it runs on the caller's
+/// rayon pool, which the caller sizes.
+pub fn set_network_threads(threads: usize) {
+    #[cfg(feature = "libtorch")]
+    tch::set_num_threads(threads.max(1) as i32);
+    #[cfg(not(feature = "libtorch"))]
+    let _unused_without_libtorch = threads;
 }
 
 /// A device was asked for whose backend this build lacks.
@@ -92,6 +107,12 @@ pub fn device(choice: DeviceChoice) -> Result<burn::tensor::Device, MissingBacke
         DeviceChoice::Wgpu => Ok(burn::tensor::Device::wgpu(
             burn::tensor::DeviceKind::DefaultDevice,
         )),
+        // burn 0.22 marks LibTorch deprecated in favour of its CubeCL backends, but their CPU
+        // one (burn-cpu) builds on tracel-llvm-bundler, which downloads LLVM from outside
+        // crates.io at build time (docs/gpu.md); LibTorch builds from the registries.
+        #[cfg(feature = "libtorch")]
+        #[allow(deprecated)]
+        DeviceChoice::LibTorch => Ok(burn::tensor::Device::libtorch()),
         #[allow(unreachable_patterns)]
         other => Err(MissingBackend {
             feature: other.feature().unwrap_or("cpu"),
@@ -106,7 +127,11 @@ mod device_tests {
     #[test]
     fn the_cpu_is_always_there_and_a_missing_backend_says_which_feature() {
         assert!(device(DeviceChoice::Cpu).is_ok());
-        for choice in [DeviceChoice::Cuda, DeviceChoice::Wgpu] {
+        for choice in [
+            DeviceChoice::Cuda,
+            DeviceChoice::Wgpu,
+            DeviceChoice::LibTorch,
+        ] {
             match device(choice) {
                 Ok(_) => assert!(choice.compiled_in()),
                 Err(e) => {

@@ -50,7 +50,7 @@ pub struct Cli {
 
     /// Where networks train and run (segmenter train / eval / predict / bench, agent
     /// train): `cpu`, or a GPU through burn's `cuda` or `wgpu` backend in a build with that
-    /// cargo feature (docs/gpu.md).
+    /// cargo feature, or `libtorch` (PyTorch's kernels on the CPU; docs/gpu.md).
     #[arg(long, global = true, value_enum, default_value = "cpu")]
     pub device: DeviceArg,
 
@@ -67,6 +67,8 @@ pub enum DeviceArg {
     Cuda,
     /// The default wgpu adapter: Vulkan, Metal or DX12 (a build with `--features wgpu`).
     Wgpu,
+    /// burn's LibTorch backend on the CPU (a build with `--features libtorch`).
+    Libtorch,
 }
 
 impl From<DeviceArg> for models::DeviceChoice {
@@ -75,6 +77,7 @@ impl From<DeviceArg> for models::DeviceChoice {
             DeviceArg::Cpu => models::DeviceChoice::Cpu,
             DeviceArg::Cuda => models::DeviceChoice::Cuda,
             DeviceArg::Wgpu => models::DeviceChoice::Wgpu,
+            DeviceArg::Libtorch => models::DeviceChoice::LibTorch,
         }
     }
 }

@@ -120,7 +120,8 @@ pub fn parse_source(text: &str) -> Result<SourceSpec, String> {
     SourceSpec::parse(text)
 }
 
-/// Runs `f` on a rayon pool of `threads` threads (burn's flex backend uses the current pool).
+/// Runs `f` on a rayon pool of `threads` threads (burn's flex backend uses the current pool;
+/// LibTorch's own pool is capped at the same number).
 pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
     match threads {
         None => Ok(f()),
@@ -134,6 +135,8 @@ pub fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Sen
                         "use fewer --threads",
                     )
                 })?;
+            // LibTorch keeps a pool of its own; flex runs on this one.
+            models::set_network_threads(n);
             Ok(pool.install(f))
         }
     }
