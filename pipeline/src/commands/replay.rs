@@ -412,18 +412,22 @@ impl Report {
 /// offline training (`agent train --offline`) learns from the same.
 pub(crate) struct Views {
     bev: BevConfig,
+    /// Log frames between stacked frames (1: consecutive).
+    frame_spacing: usize,
     renderer: BevRenderer,
     speed_scale_mps: f64,
     target_speed_mps: f64,
 }
 
 impl Views {
-    /// The views of `bev` over `map` (read from `map_path`), with the scalars' speed scale
-    /// and the target speed the policies are told.
+    /// The views of `bev` over `map` (read from `map_path`), their stacked frames
+    /// `frame_spacing` log frames apart, with the scalars' speed scale and the target speed
+    /// the policies are told.
     pub(crate) fn new(
         map: &maps::Map,
         map_path: &Path,
         bev: BevConfig,
+        frame_spacing: usize,
         speed_scale_mps: f64,
         target_speed_mps: f64,
     ) -> Result<Views> {
@@ -436,14 +440,15 @@ impl Views {
         })?;
         Ok(Views {
             bev,
+            frame_spacing,
             renderer,
             speed_scale_mps,
             target_speed_mps,
         })
     }
 
-    /// Per frame of the approach: its layer stack (oldest first, the first frame repeated
-    /// at the start) and the vehicle's speed.
+    /// Per frame of the approach: its layer stack (oldest first, `frame_spacing` log frames
+    /// apart, the first frame repeated at the start) and the vehicle's speed.
     pub(crate) fn stacks(
         &self,
         map: &maps::Map,
@@ -457,30 +462,22 @@ impl Views {
             approach.track,
             &NoiseConfig::default(),
         );
-        // Every projected frame in order through a frame stack, as the simulator stacks
-        // them; the approach's frames are a stretch of them.
         let frame_len = self.bev.frame_len();
-        let mut stack = FrameStack::new(frame_len, self.bev.stack);
-        let mut wanted = approach.frames.iter().peekable();
-        let mut out = Vec::with_capacity(approach.frames.len());
-        for (j, (figures, frame)) in projected
+        let frames = projected
             .iter()
             .zip(layers.chunks_exact(frame_len))
-            .enumerate()
-        {
-            if j == 0 {
-                stack.reset(frame);
-            } else {
-                stack.push(frame);
-            }
-            if wanted.peek() == Some(&&figures.log_frame) {
-                wanted.next();
-                let mut layers = Vec::new();
-                stack.write(&mut layers);
-                out.push((layers, figures.speed_mps));
-            }
-        }
-        out
+            .map(|(figures, frame)| (figures.log_frame, frame));
+        let stacks = stacks_at(
+            frames,
+            frame_len,
+            self.bev.stack,
+            self.frame_spacing,
+            &approach.frames,
+        );
+        stacks
+            .into_iter()
+            .map(|(j, layers)| (layers, projected[j].speed_mps))
+            .collect()
     }
 
     /// The task's observation: the layer stack and its scalars (no last action: all zero).
@@ -508,10 +505,41 @@ impl Views {
     }
 }
 
-/// Projected logs give the bird's-eye layers and the speed of every log frame, not the rule
-/// inputs ([`InsertionConfig::rule_inputs`]) nor frames stacked several world steps apart
-/// ([`InsertionConfig::action_repeat`], [`InsertionConfig::frame_steps`]): one clear error
-/// for a task that asks for any of them.
+/// The layer stacks at the `wanted` log frames (in time order), with each one's position in
+/// `frames`, when every frame of `frames` (log frame, layers; in time order) goes through a
+/// [`FrameStack`] of `stack` frames `spacing` frames apart, as the simulator stacks the frames
+/// it draws. The first frame fills the stack.
+fn stacks_at<'a>(
+    frames: impl IntoIterator<Item = (usize, &'a [u8])>,
+    frame_len: usize,
+    stack: usize,
+    spacing: usize,
+    wanted: &[usize],
+) -> Vec<(usize, Vec<u8>)> {
+    let mut frame_stack = FrameStack::spaced(frame_len, stack, spacing);
+    let mut wanted = wanted.iter().peekable();
+    let mut out = Vec::with_capacity(wanted.len());
+    for (j, (log_frame, frame)) in frames.into_iter().enumerate() {
+        if j == 0 {
+            frame_stack.reset(frame);
+        } else {
+            frame_stack.push(frame);
+        }
+        if wanted.peek() == Some(&&log_frame) {
+            wanted.next();
+            let mut layers = Vec::new();
+            frame_stack.write(&mut layers);
+            out.push((j, layers));
+        }
+    }
+    out
+}
+
+/// Projected logs give the bird's-eye layers and the speed of every log frame (one frame per
+/// world step), not the rule inputs ([`InsertionConfig::rule_inputs`]) nor decisions every
+/// several steps ([`InsertionConfig::action_repeat`]): one clear error for a task that asks
+/// for either. Frames stacked several steps apart ([`InsertionConfig::frame_steps`]) are
+/// stacked that many log frames apart.
 pub(crate) fn refuse_unprojectable(config: &InsertionConfig, whose: &str) -> Result<()> {
     if config.rule_inputs {
         return Err(CliError::new(
@@ -523,21 +551,12 @@ pub(crate) fn refuse_unprojectable(config: &InsertionConfig, whose: &str) -> Res
     if config.action_repeat != 1 {
         return Err(CliError::new(
             format!(
-                "{whose} has `action_repeat = {}`: it decides every {} steps on frames stacked \
-                 that far apart, and projected logs give one frame per step",
+                "{whose} has `action_repeat = {}`: it decides every {} steps, and projected logs \
+                 give a decision every step",
                 config.action_repeat, config.action_repeat
             ),
-            "use a task with action_repeat = 1 (the default) for logs",
-        )
-        .into());
-    }
-    if let Some(frame_steps) = config.frame_steps.filter(|&f| f != 1) {
-        return Err(CliError::new(
-            format!(
-                "{whose} has `frame_steps = {frame_steps}`: its frames are stacked {frame_steps} \
-                 steps apart, and projected logs stack consecutive frames"
-            ),
-            "use a task without frame_steps (the default) for logs",
+            "use a task with action_repeat = 1 (the default) for logs; frame_steps spaces the \
+             stacked frames",
         )
         .into());
     }
@@ -597,7 +616,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     }
     let device = models::cpu_device();
     // The agent, and the view it was trained on (behaviour cloning sees the same).
-    let (agent, bev, speed_scale_mps) = match &args.agent {
+    let (agent, bev, frame_spacing, speed_scale_mps) = match &args.agent {
         None => (
             None,
             BevConfig {
@@ -606,6 +625,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                 stack: 2,
                 ..BevConfig::default()
             },
+            1,
             15.0,
         ),
         Some(dir) => {
@@ -624,11 +644,19 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             (
                 Some(policy),
                 config.observation.clone(),
+                config.frame_spacing(),
                 config.speed_scale_mps,
             )
         }
     };
-    let views = Views::new(&map, &args.map, bev, speed_scale_mps, args.target_speed)?;
+    let views = Views::new(
+        &map,
+        &args.map,
+        bev,
+        frame_spacing,
+        speed_scale_mps,
+        args.target_speed,
+    )?;
     let labels = LabelConfig::default();
 
     // Behaviour cloning on the training logs' go and wait frames.
@@ -1077,4 +1105,40 @@ fn open_loop_markdown(r: &Report) -> String {
         );
     }
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Log frames 10 to 19, each one byte long holding its own number; the stacks of frames
+    /// 12, 13 and 18.
+    fn stacks_of(stack: usize, spacing: usize) -> Vec<(usize, Vec<u8>)> {
+        let frames: Vec<(usize, [u8; 1])> = (10..20).map(|n| (n, [n as u8])).collect();
+        stacks_at(
+            frames.iter().map(|(n, bytes)| (*n, &bytes[..])),
+            1,
+            stack,
+            spacing,
+            &[12, 13, 18],
+        )
+    }
+
+    #[test]
+    fn log_stacks_hold_the_frames_spacing_apart_oldest_first() {
+        // Consecutive frames, as before frame_steps reached the logs.
+        assert_eq!(
+            stacks_of(2, 1),
+            vec![(2, vec![11, 12]), (3, vec![12, 13]), (8, vec![17, 18])]
+        );
+        // Three frames three apart: the first frame fills the stack until it is old enough.
+        assert_eq!(
+            stacks_of(3, 3),
+            vec![
+                (2, vec![10, 10, 12]),
+                (3, vec![10, 10, 13]),
+                (8, vec![12, 15, 18])
+            ]
+        );
+    }
 }

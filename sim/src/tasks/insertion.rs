@@ -158,7 +158,7 @@ impl InsertionConfig {
     }
 
     /// How many drawn frames apart the stacked ones are.
-    fn frame_spacing(&self) -> usize {
+    pub fn frame_spacing(&self) -> usize {
         match self.frame_steps {
             Some(f) if self.frames_every_step() => f,
             Some(f) => f / self.action_repeat.max(1),

@@ -129,6 +129,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         &map,
         map_path,
         task_config.observation.clone(),
+        task_config.frame_spacing(),
         task_config.speed_scale_mps,
         args.target_speed,
     )?;
