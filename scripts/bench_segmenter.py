@@ -4,7 +4,9 @@
 Both sides build the default architecture (ResNet-18 basic blocks, width 1, depth 3 =
 output stride 8, pyramid bins 1, 2, 3, 6, 512 pyramid channels, 5 classes; or the options
 given) with untrained weights, and time with the same protocol: WARMUP untimed runs, then
-RUNS timed ones, median; fixed pseudo-random inputs.
+RUNS timed ones, median; fixed pseudo-random inputs. The sides take turns for ROUNDS rounds
+(ours, ours on LibTorch, PyTorch, ours, ...) so that all see the same state of the machine;
+each figure is the median of a side's round medians.
 
 - inference: one forward pass at SIZE x SIZE, batch 1, THREADS threads (burn: a rayon pool
   of THREADS threads; PyTorch: torch.set_num_threads(THREADS), eval mode, no_grad);
@@ -21,7 +23,7 @@ backend in the same run: PyTorch's kernels under burn's layers, autodiff and Ada
 
 Usage (from the repository root; installs torch from PyPI when missing):
     cargo build --release -p pipeline
-    python3 scripts/bench_segmenter.py [--runs 20] [--threads 2] [--size 256]
+    python3 scripts/bench_segmenter.py [--rounds 3] [--runs 20] [--threads 2] [--size 256]
         [--pipeline target/release/pipeline] [--libtorch-pipeline target/libtorch/release/pipeline]
         [--out docs/benchmarks/segmenter.json] [-- extra bench options]
 """
@@ -73,6 +75,18 @@ def median_ms(fn, warmup, runs):
     return statistics.median(times), min(times), max(times)
 
 
+def across_rounds(figures):
+    """A side's figures over the rounds: the last round's record, with each timing replaced by
+    the median of the round medians (and the round medians kept)."""
+    combined = dict(figures[-1])
+    for key in ("inference_ms", "train_step_ms"):
+        medians = [f[key]["median"] for f in figures]
+        combined[key] = {"median": statistics.median(medians), "round_medians": medians,
+                         "min": min(f[key]["min"] for f in figures), "max": max(f[key]["max"] for f in figures),
+                         "runs_per_round": figures[-1][key]["runs"]}
+    return combined
+
+
 def pytorch(args, ref, config):
     import torch
     torch.set_num_threads(args.threads)
@@ -118,6 +132,7 @@ def pytorch(args, ref, config):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rounds", type=int, default=3, help="turns each side takes")
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--train-runs", type=int, default=5)
     ap.add_argument("--warmup", type=int, default=3)
@@ -133,8 +148,19 @@ def main():
     if not Path(args.pipeline).exists():
         sys.exit(f"{args.pipeline} not found: cargo build --release -p pipeline (or give --pipeline)")
     ref = load_reference()
-    burn, cmd = ours(args, extra)
-    torch_figures = pytorch(args, ref, burn["config"])
+    rounds = {"burn": [], "pytorch": [], "burn_libtorch": []}
+    for round_index in range(args.rounds):
+        burn, cmd = ours(args, extra)
+        rounds["burn"].append(burn)
+        if args.libtorch_pipeline:
+            on_libtorch, libtorch_cmd = ours(args, extra, args.libtorch_pipeline, "libtorch")
+            rounds["burn_libtorch"].append(on_libtorch)
+        rounds["pytorch"].append(pytorch(args, ref, burn["config"]))
+        print(f"round {round_index + 1}: training step "
+              + ", ".join(f"{side} {figures[-1]['train_step_ms']['median']:.0f} ms"
+                          for side, figures in rounds.items() if figures), file=sys.stderr)
+    burn = across_rounds(rounds["burn"])
+    torch_figures = across_rounds(rounds["pytorch"])
     if torch_figures["parameters_with_running_stats"] != burn["parameters"]:
         sys.exit(f"not the same network: {burn['parameters']} parameters and batch-norm statistics "
                  f"in burn, {torch_figures['parameters_with_running_stats']} in PyTorch")
@@ -143,12 +169,12 @@ def main():
     result = {
         "date": time.strftime("%Y-%m-%d"), "machine": platform.processor() or platform.machine(),
         "command": " ".join(map(str, cmd)), "size": args.size, "threads": args.threads,
-        "train_batch": args.train_batch, "burn": burn, "pytorch": torch_figures,
+        "train_batch": args.train_batch, "rounds": args.rounds, "burn": burn, "pytorch": torch_figures,
         "inference_ratio_torch_over_burn": t_inf / b_inf, "train_step_ratio_torch_over_burn": t_tr / b_tr,
     }
     sides = [("burn (flex)", burn)]
     if args.libtorch_pipeline:
-        on_libtorch, libtorch_cmd = ours(args, extra, args.libtorch_pipeline, "libtorch")
+        on_libtorch = across_rounds(rounds["burn_libtorch"])
         result["burn_libtorch"] = on_libtorch
         result["libtorch_command"] = " ".join(map(str, libtorch_cmd))
         result["inference_ratio_torch_over_burn_libtorch"] = t_inf / on_libtorch["inference_ms"]["median"]
@@ -162,9 +188,11 @@ def main():
           + " | ".join(f"PyTorch / {n}" for n in names) + " |")
     print("| --- |" + " ---: |" * (2 * len(sides) + 1))
     rows = [
-        (f"inference {args.size}x{args.size}, batch 1, {args.threads} threads (median of {args.runs})",
+        (f"inference {args.size}x{args.size}, batch 1, {args.threads} threads "
+         f"(median of {args.rounds} rounds of {args.runs})",
          "inference_ms", t_inf, ".1f"),
-        (f"training step, batch {args.train_batch}, {args.threads} threads (median of {args.train_runs})",
+        (f"training step, batch {args.train_batch}, {args.threads} threads "
+         f"(median of {args.rounds} rounds of {args.train_runs})",
          "train_step_ms", t_tr, ".0f"),
     ]
     for label, key, theirs, fmt in rows:

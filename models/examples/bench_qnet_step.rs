@@ -15,6 +15,11 @@
 
 use std::time::Instant;
 
+// The `pipeline` binary's allocator and its settings (models::allocator), so the step is timed
+// as training runs it.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use models::dqn::{AgentShape, DqnConfig, Learner};
 use models::qnet::QNetworkConfig;
 use models::replay::Batch;
@@ -55,6 +60,7 @@ fn random_batch(rng: &mut ChaCha8Rng, shape: &AgentShape, size: usize) -> Batch 
 }
 
 fn main() {
+    models::allocator::keep_freed_memory();
     let args: Vec<String> = std::env::args().collect();
     let network: String = arg(&args, "--network", "default".to_owned());
     let batch_size: usize = arg(&args, "--batch", 32);

@@ -2,6 +2,9 @@
 //! and the PSPNet-style segmenter.
 //!
 //! - [`segmenter`]: the PSPNet-style segmenter.
+//! - [`layers`]: the networks' convolution and batch norm (LibTorch's own backward passes on
+//!   LibTorch).
+//! - [`allocator`]: mimalloc's settings for training.
 //! - [`qnet`]: the Q-network (convolutions over the bird's-eye layers + an MLP over the
 //!   scalar inputs; dueling head; the ITS preset).
 //! - [`dqn`]: DQN / Double DQN in one file, every hyper-parameter in [`dqn::DqnConfig`];
@@ -18,10 +21,12 @@
 //! features add GPU backends, chosen at run time with [`device`] (burn's `Device` is one
 //! type whatever the backend, so the networks need no backend type parameter).
 
+pub mod allocator;
 pub mod bc;
 pub mod camera_view;
 pub mod dqn;
 pub mod error;
+pub mod layers;
 pub mod offline;
 pub mod packed;
 pub mod policy;

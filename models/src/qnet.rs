@@ -8,11 +8,11 @@
 //! so the same seed gives the same network on every backend, in any thread, and the PyTorch
 //! comparison in `scripts/bench_qnet.py` starts from the same distribution.
 
+use crate::layers::relu;
 use burn::module::{Module, Param, ParamId};
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{AdaptiveAvgPool2d, AdaptiveAvgPool2dConfig};
 use burn::nn::{Initializer, Linear, LinearConfig, PaddingConfig2d};
-use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -279,7 +279,7 @@ impl QNetwork {
         } else {
             let mut x = layers;
             for conv in &self.convolutions {
-                x = relu(conv.forward(x));
+                x = relu(crate::layers::conv2d(conv, x));
             }
             if let Some(pool) = &self.pool {
                 x = pool.forward(x);

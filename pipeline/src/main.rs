@@ -12,6 +12,7 @@ use clap::Parser;
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn main() -> ExitCode {
+    models::allocator::keep_freed_memory();
     let cli = pipeline::Cli::parse();
     let verbosity = cli.verbosity();
     match pipeline::run(cli) {

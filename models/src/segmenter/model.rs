@@ -20,12 +20,12 @@
 //! Parameter names follow the module fields (`encoder.stages.0.blocks.1.conv2.weight`, ...);
 //! `scripts/segmenter_reference.py` builds the same tree in PyTorch, so its weights load here.
 
+use crate::layers::relu;
 use burn::config::Config;
 use burn::module::{Module, Param, ParamId, RunningState};
 use burn::nn::conv::Conv2d;
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{BatchNorm, PaddingConfig2d};
-use burn::tensor::activation::relu;
 use burn::tensor::module::{adaptive_avg_pool2d, interpolate};
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor, TensorData};
@@ -320,9 +320,9 @@ impl ConvNorm {
 
     /// `[B, C_in, H, W] -> [B, C_out, H / stride, W / stride]`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let x = self.conv.forward(x);
+        let x = crate::layers::conv2d(&self.conv, x);
         match &self.norm {
-            Some(norm) => norm.forward(x),
+            Some(norm) => crate::layers::batch_norm(norm, x),
             None => x,
         }
     }
@@ -607,11 +607,11 @@ impl PspNet {
         if let Some(skip) = &self.skip {
             x = skip.forward(x, stages[0].clone(), ac);
         }
-        let logits = resize(self.classifier.forward(x), [h, w], ac);
+        let logits = resize(crate::layers::conv2d(&self.classifier, x), [h, w], ac);
         let aux = match (&self.aux, noise_seed) {
             (Some(aux), Some(_)) if stages.len() >= 2 => {
                 let input = stages[stages.len() - 2].clone();
-                let y = aux.classifier.forward(relu(aux.conv.forward(input)));
+                let y = crate::layers::conv2d(&aux.classifier, relu(aux.conv.forward(input)));
                 Some(resize(y, [h, w], ac))
             }
             _ => None,

@@ -1,0 +1,502 @@
+//! The networks' convolution and batch normalisation: burn's `Conv2d` and `BatchNorm`, with
+//! LibTorch's own backward passes when the tensors live on burn's LibTorch backend.
+//!
+//! burn's autodiff differentiates these layers with backend-independent formulas built from
+//! tensor operations (`burn-backend`: the weight gradient of a convolution as a convolution of
+//! the input by the output gradient, batch norm's statistics and gradients as a dozen
+//! element-wise passes), and `burn-tch` keeps those defaults. On LibTorch, [`conv2d`] and
+//! [`batch_norm`] record the layer in LibTorch's autograd as well and hand its backward to
+//! LibTorch (burn's backend-extension mechanism: [`torch`]); every other backend runs the
+//! module's own `forward` unchanged. Measured in docs/benchmarks.md (segmenter and DQN steps).
+
+use burn::nn::conv::Conv2d;
+use burn::nn::{BatchNorm, PaddingConfig2d};
+use burn::tensor::Tensor;
+use burn::tensor::ops::ConvOptions;
+
+/// `layer.forward(x)`, with LibTorch's backward pass on the LibTorch backend.
+///
+/// Shapes: `x` is `[batch, channels_in, height, width]`; the result is
+/// `[batch, channels_out, height_out, width_out]`, as `Conv2d::forward`.
+pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    #[cfg(feature = "libtorch")]
+    if torch::runs_on_libtorch(&x)
+        && let Some(options) = symmetric_options(layer)
+    {
+        return torch::conv2d(layer, x, options);
+    }
+    layer.forward(x)
+}
+
+/// `norm.forward(x)`, with LibTorch's batch norm and its backward pass when training on the
+/// LibTorch backend (the running statistics are updated as `BatchNorm` updates them).
+///
+/// Shapes: `x` and the result are `[batch, channels, height, width]`.
+pub fn batch_norm(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
+    #[cfg(feature = "libtorch")]
+    if torch::runs_on_libtorch(&x) && x.device().is_autodiff() && norm.training.is_enabled() {
+        return torch::batch_norm_train(norm, x);
+    }
+    norm.forward(x)
+}
+
+/// `relu(x)`, with LibTorch's ReLU and its backward pass when training on the LibTorch backend
+/// (burn's backward masks the gradient with a separate comparison and masked fill).
+pub fn relu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    #[cfg(feature = "libtorch")]
+    if torch::runs_on_libtorch(&x) && x.device().is_autodiff() {
+        return Tensor::from_dispatch(
+            <burn::backend::Dispatch as torch::TorchLayers>::relu_torch_backward(x.into_dispatch()),
+        );
+    }
+    burn::tensor::activation::relu(x)
+}
+
+/// The layer's convolution options when its padding is the same on both sides of each axis
+/// (every layer of our networks); `None` sends the layer through `Conv2d::forward`.
+#[cfg_attr(not(feature = "libtorch"), allow(dead_code))]
+fn symmetric_options(layer: &Conv2d) -> Option<ConvOptions<2>> {
+    let padding = match layer.padding {
+        PaddingConfig2d::Valid => [0, 0],
+        PaddingConfig2d::Explicit(top, left, bottom, right) if top == bottom && left == right => {
+            [top, left]
+        }
+        _ => return None,
+    };
+    Some(ConvOptions::new(
+        layer.stride,
+        padding,
+        layer.dilation,
+        layer.groups,
+    ))
+}
+
+#[cfg(feature = "libtorch")]
+// burn 0.22 marks LibTorch deprecated (models::device says why we use it).
+#[allow(deprecated)]
+pub mod torch {
+    //! LibTorch's backward passes under burn's autodiff (a backend extension).
+    //!
+    //! Forward, when any input needs a gradient: the layer runs in LibTorch with autograd on,
+    //! over detached copies of the inputs that need one; burn gets the detached output and the
+    //! autograd graph stays in the backward state. Backward: LibTorch's autograd runs from
+    //! `sum(output * output_grad)` (a dot product), whose gradient with respect to the output is `output_grad`,
+    //! so the inputs' gradients are exactly the layer's, computed by LibTorch's own kernels.
+
+    use std::fmt;
+
+    use burn::backend::autodiff::checkpoint::base::Checkpointer;
+    use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+    use burn::backend::autodiff::grads::Gradients;
+    use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+    use burn::backend::libtorch::TchTensor;
+    use burn::backend::tensor::FloatTensor;
+    use burn::backend::{
+        Autodiff, AutodiffBackend, Backend, Dispatch, LibTorch, backend_extension,
+    };
+    use burn::nn::BatchNorm;
+    use burn::nn::conv::Conv2d;
+    use burn::tensor::Tensor;
+    use burn::tensor::ops::ConvOptions;
+
+    /// Whether `x` lives on LibTorch (with or without autodiff).
+    pub fn runs_on_libtorch<const D: usize>(x: &Tensor<D>) -> bool {
+        matches!(
+            x.device().inner().as_dispatch(),
+            burn::backend::DispatchDevice::LibTorch(_)
+        )
+    }
+
+    pub(super) fn conv2d(layer: &Conv2d, x: Tensor<4>, options: ConvOptions<2>) -> Tensor<4> {
+        let (x, weight) = (x.into_dispatch(), layer.weight.val().into_dispatch());
+        Tensor::from_dispatch(match &layer.bias {
+            Some(bias) => <Dispatch as TorchLayers>::conv2d_bias_torch_backward(
+                x,
+                weight,
+                bias.val().into_dispatch(),
+                options,
+            ),
+            None => <Dispatch as TorchLayers>::conv2d_torch_backward(x, weight, options),
+        })
+    }
+
+    /// `BatchNorm::forward` in training: normalise with the batch's statistics and move the
+    /// running ones towards them by the layer's momentum.
+    pub(super) fn batch_norm_train(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
+        let (output, mean, variance) = <Dispatch as TorchLayers>::batch_norm_train_torch_backward(
+            x.into_dispatch(),
+            norm.gamma.val().into_dispatch(),
+            norm.beta.val().into_dispatch(),
+            norm.epsilon,
+        );
+        let (mean, variance) = (
+            Tensor::<1>::from_dispatch(mean),
+            Tensor::<1>::from_dispatch(variance),
+        );
+        let device = mean.device();
+        let momentum = norm.momentum;
+        let moved = |running: Tensor<1>, batch: Tensor<1>| {
+            running
+                .to_device(&device)
+                .mul_scalar(1.0 - momentum)
+                .add(batch.detach().mul_scalar(momentum))
+                .detach()
+        };
+        norm.running_mean
+            .update(moved(norm.running_mean.value_sync(), mean));
+        norm.running_var
+            .update(moved(norm.running_var.value_sync(), variance));
+        Tensor::from_dispatch(output)
+    }
+
+    /// Layers whose backward pass is LibTorch's. (Separate methods rather than an optional
+    /// bias: burn 0.22's extension macro does not route an `Option` tensor.)
+    #[backend_extension(LibTorch, Autodiff)]
+    pub trait TorchLayers: Backend {
+        /// `conv2d(x, weight)`.
+        fn conv2d_torch_backward(
+            x: FloatTensor<Self>,
+            weight: FloatTensor<Self>,
+            options: ConvOptions<2>,
+        ) -> FloatTensor<Self>;
+
+        /// `conv2d(x, weight) + bias`.
+        fn conv2d_bias_torch_backward(
+            x: FloatTensor<Self>,
+            weight: FloatTensor<Self>,
+            bias: FloatTensor<Self>,
+            options: ConvOptions<2>,
+        ) -> FloatTensor<Self>;
+
+        /// `max(x, 0)`.
+        fn relu_torch_backward(x: FloatTensor<Self>) -> FloatTensor<Self>;
+
+        /// Batch norm with the batch's statistics: the output, and the batch's mean and biased
+        /// variance per channel (as burn's `batch_norm_train`).
+        fn batch_norm_train_torch_backward(
+            x: FloatTensor<Self>,
+            gamma: FloatTensor<Self>,
+            beta: FloatTensor<Self>,
+            epsilon: f64,
+        ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+    }
+
+    // The layers themselves, on tensors without autodiff: LibTorch's forward passes.
+    impl TorchLayers for LibTorch {
+        fn conv2d_torch_backward(
+            x: TchTensor,
+            weight: TchTensor,
+            options: ConvOptions<2>,
+        ) -> TchTensor {
+            TchTensor::new(conv2d_op(&[x.tensor, weight.tensor], &options))
+        }
+
+        fn conv2d_bias_torch_backward(
+            x: TchTensor,
+            weight: TchTensor,
+            bias: TchTensor,
+            options: ConvOptions<2>,
+        ) -> TchTensor {
+            TchTensor::new(conv2d_op(&[x.tensor, weight.tensor, bias.tensor], &options))
+        }
+
+        fn relu_torch_backward(x: TchTensor) -> TchTensor {
+            TchTensor::new(x.tensor.relu())
+        }
+
+        fn batch_norm_train_torch_backward(
+            x: TchTensor,
+            gamma: TchTensor,
+            beta: TchTensor,
+            epsilon: f64,
+        ) -> (TchTensor, TchTensor, TchTensor) {
+            let (output, [mean, variance]) =
+                batch_norm_op(&[x.tensor, gamma.tensor, beta.tensor], epsilon);
+            (
+                TchTensor::new(output),
+                TchTensor::new(mean),
+                TchTensor::new(variance),
+            )
+        }
+    }
+
+    impl<C: CheckpointStrategy> TorchLayers for Autodiff<LibTorch, C> {
+        fn conv2d_torch_backward(
+            x: FloatTensor<Self>,
+            weight: FloatTensor<Self>,
+            options: ConvOptions<2>,
+        ) -> FloatTensor<Self> {
+            differentiated::<C, 2, ()>([x, weight], |inputs| (conv2d_op(inputs, &options), ())).0
+        }
+
+        fn conv2d_bias_torch_backward(
+            x: FloatTensor<Self>,
+            weight: FloatTensor<Self>,
+            bias: FloatTensor<Self>,
+            options: ConvOptions<2>,
+        ) -> FloatTensor<Self> {
+            differentiated::<C, 3, ()>([x, weight, bias], |inputs| {
+                (conv2d_op(inputs, &options), ())
+            })
+            .0
+        }
+
+        fn relu_torch_backward(x: FloatTensor<Self>) -> FloatTensor<Self> {
+            differentiated::<C, 1, ()>([x], |[x]| (x.relu(), ())).0
+        }
+
+        fn batch_norm_train_torch_backward(
+            x: FloatTensor<Self>,
+            gamma: FloatTensor<Self>,
+            beta: FloatTensor<Self>,
+            epsilon: f64,
+        ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+            let (output, [mean, variance]) =
+                differentiated::<C, 3, _>([x, gamma, beta], |inputs| {
+                    batch_norm_op(inputs, epsilon)
+                });
+            let constant = |t: tch::Tensor| Self::from_inner(TchTensor::new(t.detach()));
+            (output, constant(mean), constant(variance))
+        }
+    }
+
+    /// `conv2d(inputs[0], inputs[1]) + inputs[2]` (the bias when there are three).
+    fn conv2d_op<const N: usize>(
+        inputs: &[tch::Tensor; N],
+        options: &ConvOptions<2>,
+    ) -> tch::Tensor {
+        tch::Tensor::conv2d(
+            &inputs[0],
+            &inputs[1],
+            inputs.get(2),
+            options.stride.map(|v| v as i64),
+            options.padding_begin().map(|v| v as i64),
+            options.dilation.map(|v| v as i64),
+            options.groups as i64,
+        )
+    }
+
+    /// Batch norm of `x` with `gamma` and `beta` over the batch's statistics; also returns the
+    /// mean and the biased variance (LibTorch gives `1 / sqrt(variance + epsilon)`).
+    fn batch_norm_op(inputs: &[tch::Tensor; 3], epsilon: f64) -> (tch::Tensor, [tch::Tensor; 2]) {
+        let [x, gamma, beta] = inputs;
+        let (output, mean, inv_std) = x.native_batch_norm(
+            Some(gamma),
+            Some(beta),
+            None::<&tch::Tensor>,
+            None,
+            true,
+            0.0,
+            epsilon,
+        );
+        // Copies: burn may update the statistics in place, and LibTorch saved them for the
+        // backward pass.
+        let variance = inv_std.detach().square().reciprocal() - epsilon;
+        (output, [mean.detach().copy(), variance])
+    }
+
+    /// Runs `op` on the inputs' LibTorch tensors, recorded by LibTorch's autograd when burn
+    /// tracks any input, and registers the backward step with burn's autodiff. Returns the
+    /// output as burn's tensor and `op`'s other results as they are.
+    fn differentiated<C: CheckpointStrategy, const N: usize, X>(
+        inputs: [FloatTensor<Autodiff<LibTorch, C>>; N],
+        op: impl FnOnce(&[tch::Tensor; N]) -> (tch::Tensor, X),
+    ) -> (FloatTensor<Autodiff<LibTorch, C>>, X) {
+        let tracked = inputs.each_ref().map(|t| t.is_tracked());
+        let parts = inputs.map(|t| t.into_parts());
+        let mut primitives = Vec::with_capacity(N);
+        let nodes = parts.map(|(primitive, node)| {
+            primitives.push(primitive);
+            node
+        });
+        let Ok(primitives): Result<[TchTensor; N], _> = primitives.try_into() else {
+            unreachable!("one primitive per input")
+        };
+        match TorchBackward.prepare::<C>(nodes).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                // The leaves share the inputs' storage and the output shares the graph's; the
+                // graph keeps burn's handles on both alive, so burn-tch, which updates a tensor
+                // in place when it holds the only handle, leaves the values LibTorch saved for
+                // the backward pass alone.
+                let leaves: [tch::Tensor; N] = std::array::from_fn(|i| {
+                    primitives[i].tensor.detach().set_requires_grad(tracked[i])
+                });
+                let (output, extra) = tch::with_grad(|| op(&leaves));
+                let detached = TchTensor::new(output.detach());
+                let graph = TorchGraph {
+                    output,
+                    leaves,
+                    inputs: primitives,
+                    output_handle: detached.clone(),
+                };
+                (prep.finish(graph, detached), extra)
+            }
+            OpsKind::UnTracked(prep) => {
+                let tensors = primitives.map(|p| p.tensor);
+                let (output, extra) = op(&tensors);
+                (prep.finish(TchTensor::new(output)), extra)
+            }
+        }
+    }
+
+    /// A layer as LibTorch's autograd recorded it: its output (carrying the graph), the leaves
+    /// it differentiates with respect to, and burn's handles on the inputs and the output (see
+    /// [`differentiated`]).
+    struct TorchGraph<const N: usize> {
+        output: tch::Tensor,
+        leaves: [tch::Tensor; N],
+        inputs: [TchTensor; N],
+        output_handle: TchTensor,
+    }
+
+    // burn's backward state must be `Clone`; a shallow clone shares the graph.
+    impl<const N: usize> Clone for TorchGraph<N> {
+        fn clone(&self) -> Self {
+            Self {
+                output: self.output.shallow_clone(),
+                leaves: std::array::from_fn(|i| self.leaves[i].shallow_clone()),
+                inputs: self.inputs.clone(),
+                output_handle: self.output_handle.clone(),
+            }
+        }
+    }
+
+    impl<const N: usize> fmt::Debug for TorchGraph<N> {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.debug_struct("TorchGraph")
+                .field("output", &self.output.size())
+                .field("inputs", &N)
+                .finish()
+        }
+    }
+
+    #[derive(Debug)]
+    struct TorchBackward;
+
+    impl<const N: usize> Backward<LibTorch, N> for TorchBackward {
+        type State = TorchGraph<N>;
+
+        fn backward(
+            self,
+            ops: Ops<Self::State, N>,
+            grads: &mut Gradients,
+            _checkpointer: &mut Checkpointer,
+        ) {
+            let output_grad: TchTensor = grads.consume::<LibTorch>(&ops.node);
+            let TorchGraph { output, leaves, .. } = ops.state;
+            let wanted: Vec<usize> = (0..N).filter(|&i| ops.parents[i].is_some()).collect();
+            if wanted.is_empty() {
+                return;
+            }
+            let inputs: Vec<&tch::Tensor> = wanted.iter().map(|&i| &leaves[i]).collect();
+            // The dot product reads both once; `(output * grad).sum()` would also write a
+            // product the size of the output.
+            let objective =
+                tch::with_grad(|| output.reshape([-1]).dot(&output_grad.tensor.reshape([-1])));
+            let input_grads = tch::Tensor::run_backward(&[objective], &inputs, false, false);
+            for (i, grad) in wanted.into_iter().zip(input_grads) {
+                if let Some(parent) = &ops.parents[i] {
+                    grads.register::<LibTorch>(parent.id, TchTensor::new(grad));
+                }
+            }
+        }
+    }
+}
+
+/// LibTorch's backward passes give burn's gradients. Runs in a build with `--features
+/// libtorch` (not in CI, which has no libtorch: docs/gpu.md).
+#[cfg(all(test, feature = "libtorch"))]
+mod tests {
+    use burn::module::Param;
+    use burn::nn::conv::Conv2dConfig;
+    use burn::nn::{BatchNormConfig, PaddingConfig2d};
+    use burn::tensor::{Device, Distribution, Tensor};
+
+    use super::*;
+    use crate::qnet::tensor_values as values;
+
+    #[allow(deprecated)]
+    fn device() -> Device {
+        Device::libtorch().autodiff()
+    }
+
+    fn assert_close(ours: Vec<f32>, burns: Vec<f32>, what: &str) {
+        assert_eq!(ours.len(), burns.len(), "{what}: lengths");
+        let scale = burns.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+        for (i, (a, b)) in ours.iter().zip(&burns).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-4 * scale,
+                "{what}[{i}]: LibTorch's {a} against burn's {b}"
+            );
+        }
+    }
+
+    /// Gradients of `sum(layer(x) * r)` with respect to `x` and the parameters, through ours
+    /// and through burn's forward.
+    #[test]
+    fn convolution_batch_norm_and_relu_have_burns_gradients() {
+        let device = device();
+        let x = Tensor::<4>::random([2, 3, 9, 9], Distribution::Normal(0.0, 1.0), &device);
+        for (stride, pad, bias) in [(1, 1, true), (2, 0, false), (4, 2, true)] {
+            let conv = Conv2dConfig::new([3, 4], [3, 3])
+                .with_stride([stride, stride])
+                .with_padding(PaddingConfig2d::Explicit(pad, pad, pad, pad))
+                .with_bias(bias)
+                .init(&device);
+            let gamma = Tensor::<1>::random([4], Distribution::Normal(1.0, 0.3), &device);
+            let beta = Tensor::<1>::random([4], Distribution::Normal(0.0, 0.3), &device);
+            let r = Tensor::<4>::random(
+                conv.forward(x.clone()).dims(),
+                Distribution::Normal(0.0, 1.0),
+                &device,
+            );
+            let run = |native: bool| {
+                // A fresh layer each time: a forward pass in training moves its running
+                // statistics.
+                let norm = burn::nn::BatchNorm {
+                    gamma: Param::from_tensor(gamma.clone().detach()),
+                    beta: Param::from_tensor(beta.clone().detach()),
+                    ..BatchNormConfig::new(4).init(&device)
+                };
+                let x = x.clone().detach().require_grad();
+                let y = if native {
+                    relu(batch_norm(&norm, conv2d(&conv, x.clone())))
+                } else {
+                    burn::tensor::activation::relu(norm.forward(conv.forward(x.clone())))
+                };
+                let loss = (y.clone() * r.clone()).sum();
+                let grads = loss.backward();
+                let grad = |t: &Tensor<4>| values(t.grad(&grads).expect("a gradient"));
+                let mut out = vec![values(y.clone()), grad(&x), grad(&conv.weight.val())];
+                if let Some(b) = &conv.bias {
+                    out.push(values(b.val().grad(&grads).expect("a bias gradient")));
+                }
+                out.push(values(
+                    norm.gamma.val().grad(&grads).expect("gamma's gradient"),
+                ));
+                out.push(values(
+                    norm.beta.val().grad(&grads).expect("beta's gradient"),
+                ));
+                out.push(values(norm.running_mean.value_sync()));
+                out.push(values(norm.running_var.value_sync()));
+                out
+            };
+            let ours = run(true);
+            let burns = run(false);
+            let names = [
+                "output",
+                "x",
+                "weight",
+                "bias",
+                "gamma",
+                "beta",
+                "running mean",
+                "running var",
+            ];
+            let names = names.iter().filter(|n| bias || **n != "bias");
+            for ((a, b), name) in ours.into_iter().zip(burns).zip(names) {
+                assert_close(a, b, &format!("stride {stride} pad {pad}: {name}"));
+            }
+        }
+    }
+}
