@@ -1,13 +1,14 @@
-//! The networks' convolution and batch normalisation: burn's `Conv2d` and `BatchNorm`, with
-//! LibTorch's own backward passes when the tensors live on burn's LibTorch backend.
+//! The networks' convolution, batch normalisation and ReLU: burn's `Conv2d`, `BatchNorm` and
+//! `relu`, with LibTorch's own backward passes when the tensors live on burn's LibTorch backend.
 //!
 //! burn's autodiff differentiates these layers with backend-independent formulas built from
 //! tensor operations (`burn-backend`: the weight gradient of a convolution as a convolution of
 //! the input by the output gradient, batch norm's statistics and gradients as a dozen
-//! element-wise passes), and `burn-tch` keeps those defaults. On LibTorch, [`conv2d`] and
-//! [`batch_norm`] record the layer in LibTorch's autograd as well and hand its backward to
-//! LibTorch (burn's backend-extension mechanism: [`torch`]); every other backend runs the
-//! module's own `forward` unchanged. Measured in docs/benchmarks.md (segmenter and DQN steps).
+//! element-wise passes, ReLU's gradient as a comparison and a masked fill), and `burn-tch` keeps
+//! those defaults. On LibTorch, [`conv2d`], [`batch_norm`] and [`relu`] record the layer in
+//! LibTorch's autograd as well and hand its backward to LibTorch (burn's backend-extension
+//! mechanism: the `torch` module, with the `libtorch` feature); every other backend runs burn's
+//! own layer unchanged. Measured in docs/benchmarks.md (segmenter and DQN steps).
 
 use burn::nn::conv::Conv2d;
 use burn::nn::{BatchNorm, PaddingConfig2d};
@@ -78,10 +79,11 @@ pub mod torch {
     //! LibTorch's backward passes under burn's autodiff (a backend extension).
     //!
     //! Forward, when any input needs a gradient: the layer runs in LibTorch with autograd on,
-    //! over detached copies of the inputs that need one; burn gets the detached output and the
-    //! autograd graph stays in the backward state. Backward: LibTorch's autograd runs from
-    //! `sum(output * output_grad)` (a dot product), whose gradient with respect to the output is `output_grad`,
-    //! so the inputs' gradients are exactly the layer's, computed by LibTorch's own kernels.
+    //! over detached views of the inputs (marked as needing a gradient where burn tracks them);
+    //! burn gets the detached output and the autograd graph stays in the backward state.
+    //! Backward: LibTorch's autograd runs from the dot product of the output with its gradient,
+    //! whose gradient with respect to the output is that gradient, so the inputs' gradients are
+    //! exactly the layer's, computed by LibTorch's own kernels.
 
     use std::fmt;
 
