@@ -15,13 +15,13 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use burn::tensor::ops::ConvOptions;
 
-/// `layer.forward(x)`, with LibTorch's backward pass on the LibTorch backend.
+/// `layer.forward(x)`, with LibTorch's backward pass when training on the LibTorch backend.
 ///
 /// Shapes: `x` is `[batch, channels_in, height, width]`; the result is
 /// `[batch, channels_out, height_out, width_out]`, as `Conv2d::forward`.
 pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     #[cfg(feature = "libtorch")]
-    if torch::runs_on_libtorch(&x)
+    if torch::trains_on_libtorch(&x)
         && let Some(options) = symmetric_options(layer)
     {
         return torch::conv2d(layer, x, options);
@@ -35,7 +35,7 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// Shapes: `x` and the result are `[batch, channels, height, width]`.
 pub fn batch_norm(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
     #[cfg(feature = "libtorch")]
-    if torch::runs_on_libtorch(&x) && x.device().is_autodiff() && norm.training.is_enabled() {
+    if torch::trains_on_libtorch(&x) && norm.training.is_enabled() {
         return torch::batch_norm_train(norm, x);
     }
     norm.forward(x)
@@ -45,7 +45,7 @@ pub fn batch_norm(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
 /// (burn's backward masks the gradient with a separate comparison and masked fill).
 pub fn relu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     #[cfg(feature = "libtorch")]
-    if torch::runs_on_libtorch(&x) && x.device().is_autodiff() {
+    if torch::trains_on_libtorch(&x) {
         return Tensor::from_dispatch(
             <burn::backend::Dispatch as torch::TorchLayers>::relu_torch_backward(x.into_dispatch()),
         );
@@ -101,12 +101,15 @@ pub mod torch {
     use burn::tensor::Tensor;
     use burn::tensor::ops::ConvOptions;
 
-    /// Whether `x` lives on LibTorch (with or without autodiff).
-    pub fn runs_on_libtorch<const D: usize>(x: &Tensor<D>) -> bool {
-        matches!(
-            x.device().inner().as_dispatch(),
-            burn::backend::DispatchDevice::LibTorch(_)
-        )
+    /// Whether `x` lives on LibTorch with autodiff: the case these layers are for (without
+    /// autodiff, burn's layers call the same LibTorch kernels).
+    pub fn trains_on_libtorch<const D: usize>(x: &Tensor<D>) -> bool {
+        let device = x.device();
+        device.is_autodiff()
+            && matches!(
+                device.inner().as_dispatch(),
+                burn::backend::DispatchDevice::LibTorch(_)
+            )
     }
 
     pub(super) fn conv2d(layer: &Conv2d, x: Tensor<4>, options: ConvOptions<2>) -> Tensor<4> {
@@ -183,7 +186,8 @@ pub mod torch {
         ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
     }
 
-    // The layers themselves, on tensors without autodiff: LibTorch's forward passes.
+    // The layers on tensors without autodiff (the extension needs them; `trains_on_libtorch`
+    // routes only autodiff tensors here): LibTorch's forward passes.
     impl TorchLayers for LibTorch {
         fn conv2d_torch_backward(
             x: TchTensor,
@@ -386,20 +390,23 @@ pub mod torch {
         ) {
             let output_grad: TchTensor = grads.consume::<LibTorch>(&ops.node);
             let TorchGraph { output, leaves, .. } = ops.state;
-            let wanted: Vec<usize> = (0..N).filter(|&i| ops.parents[i].is_some()).collect();
-            if wanted.is_empty() {
+            // The tracked inputs: burn's node and LibTorch's leaf of each.
+            let (parents, inputs): (Vec<_>, Vec<_>) = ops
+                .parents
+                .iter()
+                .zip(&leaves)
+                .filter_map(|(parent, leaf)| parent.as_ref().map(|p| (p.id, leaf)))
+                .unzip();
+            if inputs.is_empty() {
                 return;
             }
-            let inputs: Vec<&tch::Tensor> = wanted.iter().map(|&i| &leaves[i]).collect();
             // The dot product reads both once; `(output * grad).sum()` would also write a
             // product the size of the output.
             let objective =
                 tch::with_grad(|| output.reshape([-1]).dot(&output_grad.tensor.reshape([-1])));
             let input_grads = tch::Tensor::run_backward(&[objective], &inputs, false, false);
-            for (i, grad) in wanted.into_iter().zip(input_grads) {
-                if let Some(parent) = &ops.parents[i] {
-                    grads.register::<LibTorch>(parent.id, TchTensor::new(grad));
-                }
+            for (parent, grad) in parents.into_iter().zip(input_grads) {
+                grads.register::<LibTorch>(parent, TchTensor::new(grad));
             }
         }
     }

@@ -2,8 +2,8 @@
 //! and the PSPNet-style segmenter.
 //!
 //! - [`segmenter`]: the PSPNet-style segmenter.
-//! - [`layers`]: the networks' convolution and batch norm (LibTorch's own backward passes on
-//!   LibTorch).
+//! - [`layers`]: the networks' convolution, batch norm and ReLU (LibTorch's own backward passes
+//!   when training on LibTorch).
 //! - [`allocator`]: mimalloc's settings for training.
 //! - [`qnet`]: the Q-network (convolutions over the bird's-eye layers + an MLP over the
 //!   scalar inputs; dueling head; the ITS preset).
