@@ -5,8 +5,12 @@ Both sides build the default architecture (ResNet-18 basic blocks, width 1, dept
 output stride 8, pyramid bins 1, 2, 3, 6, 512 pyramid channels, 5 classes; or the options
 given) with untrained weights, and time with the same protocol: WARMUP untimed runs, then
 RUNS timed ones, median; fixed pseudo-random inputs. The sides take turns for ROUNDS rounds
-(ours, ours on LibTorch, PyTorch, ours, ...) so that all see the same state of the machine;
-each figure is the median of a side's round medians.
+(ours, ours on LibTorch, PyTorch, PyTorch channels-last, ours, ...) so that all see the same
+state of the machine; each figure is the median of a side's round medians.
+
+PyTorch runs twice: as its users write it (tensors in its default NCHW layout) and with the
+model and inputs in `torch.channels_last`, the layout ours uses on LibTorch when training
+(models::layers); the report gives the ratio against both.
 
 - inference: one forward pass at SIZE x SIZE, batch 1, THREADS threads (burn: a rayon pool
   of THREADS threads; PyTorch: torch.set_num_threads(THREADS), eval mode, no_grad);
@@ -87,7 +91,10 @@ def across_rounds(figures):
     return combined
 
 
-def pytorch(args, ref, config):
+def pytorch(args, ref, config, channels_last=False):
+    """PyTorch's figures; with `channels_last`, the weights and inputs stored channels last
+    (`torch.channels_last`), the layout in which its CPU convolutions run fastest and the one
+    ours uses on LibTorch when training (models::layers)."""
     import torch
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -99,6 +106,9 @@ def pytorch(args, ref, config):
     running_stats = sum(b.numel() for n, b in model.named_buffers()
                         if n.endswith("running_mean") or n.endswith("running_var"))
     x = torch.randn(1, 3, args.size, args.size)
+    layout = torch.channels_last if channels_last else torch.contiguous_format
+    model = model.to(memory_format=layout)
+    x = x.contiguous(memory_format=layout)
 
     model.eval()
     with torch.no_grad():
@@ -106,6 +116,7 @@ def pytorch(args, ref, config):
 
     model.train()
     xb = torch.randn(args.train_batch, 3, args.size, args.size)
+    xb = xb.contiguous(memory_format=layout)
     yb = torch.randint(0, cfg["classes"], (args.train_batch, args.size, args.size))
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     loss_fn = torch.nn.CrossEntropyLoss(ignore_index=255)
@@ -124,7 +135,7 @@ def pytorch(args, ref, config):
         opt.step()
 
     train = median_ms(step, min(args.warmup, 1), args.train_runs)
-    return {"torch": torch.__version__, "parameters": params,
+    return {"torch": torch.__version__, "channels_last": channels_last, "parameters": params,
             "parameters_with_running_stats": params + running_stats,
             "inference_ms": {"median": inf[0], "min": inf[1], "max": inf[2], "runs": args.runs},
             "train_step_ms": {"median": train[0], "min": train[1], "max": train[2], "runs": args.train_runs}}
@@ -148,7 +159,7 @@ def main():
     if not Path(args.pipeline).exists():
         sys.exit(f"{args.pipeline} not found: cargo build --release -p pipeline (or give --pipeline)")
     ref = load_reference()
-    rounds = {"burn": [], "pytorch": [], "burn_libtorch": []}
+    rounds = {"burn": [], "pytorch": [], "burn_libtorch": [], "pytorch_channels_last": []}
     for round_index in range(args.rounds):
         burn, cmd = ours(args, extra)
         rounds["burn"].append(burn)
@@ -156,11 +167,13 @@ def main():
             on_libtorch, libtorch_cmd = ours(args, extra, args.libtorch_pipeline, "libtorch")
             rounds["burn_libtorch"].append(on_libtorch)
         rounds["pytorch"].append(pytorch(args, ref, burn["config"]))
+        rounds["pytorch_channels_last"].append(pytorch(args, ref, burn["config"], channels_last=True))
         print(f"round {round_index + 1}: training step "
               + ", ".join(f"{side} {figures[-1]['train_step_ms']['median']:.0f} ms"
                           for side, figures in rounds.items() if figures), file=sys.stderr)
     burn = across_rounds(rounds["burn"])
     torch_figures = across_rounds(rounds["pytorch"])
+    torch_cl = across_rounds(rounds["pytorch_channels_last"])
     if torch_figures["parameters_with_running_stats"] != burn["parameters"]:
         sys.exit(f"not the same network: {burn['parameters']} parameters and batch-norm statistics "
                  f"in burn, {torch_figures['parameters_with_running_stats']} in PyTorch")
@@ -170,6 +183,7 @@ def main():
         "date": time.strftime("%Y-%m-%d"), "machine": platform.processor() or platform.machine(),
         "command": " ".join(map(str, cmd)), "size": args.size, "threads": args.threads,
         "train_batch": args.train_batch, "rounds": args.rounds, "burn": burn, "pytorch": torch_figures,
+        "pytorch_channels_last": torch_cl,
         "inference_ratio_torch_over_burn": t_inf / b_inf, "train_step_ratio_torch_over_burn": t_tr / b_tr,
     }
     sides = [("burn (flex)", burn)]
@@ -179,26 +193,28 @@ def main():
         result["libtorch_command"] = " ".join(map(str, libtorch_cmd))
         result["inference_ratio_torch_over_burn_libtorch"] = t_inf / on_libtorch["inference_ms"]["median"]
         result["train_step_ratio_torch_over_burn_libtorch"] = t_tr / on_libtorch["train_step_ms"]["median"]
+        result["train_step_ratio_torch_channels_last_over_burn_libtorch"] = (
+            torch_cl["train_step_ms"]["median"] / on_libtorch["train_step_ms"]["median"])
         sides.append(("burn (LibTorch)", on_libtorch))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
     print(f"network: {burn['parameters']} parameters, {burn['gflops_per_image']:.2f} GFLOPs per {args.size}x{args.size} image")
     names = [name for name, _ in sides]
-    print("| measurement | " + " | ".join(f"{n} ms" for n in names) + " | PyTorch ms | "
-          + " | ".join(f"PyTorch / {n}" for n in names) + " |")
-    print("| --- |" + " ---: |" * (2 * len(sides) + 1))
+    peers = [("PyTorch", torch_figures), ("PyTorch channels-last", torch_cl)]
+    print("| measurement | " + " | ".join(f"{n} ms" for n in names + [p for p, _ in peers]) + " | "
+          + " | ".join(f"{p} / {n}" for p, _ in peers for n in names) + " |")
+    print("| --- |" + " ---: |" * (len(sides) + len(peers) + len(sides) * len(peers)))
     rows = [
         (f"inference {args.size}x{args.size}, batch 1, {args.threads} threads "
-         f"(median of {args.rounds} rounds of {args.runs})",
-         "inference_ms", t_inf, ".1f"),
+         f"(median of {args.rounds} rounds of {args.runs})", "inference_ms", ".1f"),
         (f"training step, batch {args.train_batch}, {args.threads} threads "
-         f"(median of {args.rounds} rounds of {args.train_runs})",
-         "train_step_ms", t_tr, ".0f"),
+         f"(median of {args.rounds} rounds of {args.train_runs})", "train_step_ms", ".0f"),
     ]
-    for label, key, theirs, fmt in rows:
+    for label, key, fmt in rows:
         mine = [side[key]["median"] for _, side in sides]
-        print(f"| {label} | " + " | ".join(format(m, fmt) for m in mine) + f" | {format(theirs, fmt)} | "
-              + " | ".join(f"{theirs / m:.2f}" for m in mine) + " |")
+        theirs = [peer[key]["median"] for _, peer in peers]
+        print(f"| {label} | " + " | ".join(format(v, fmt) for v in mine + theirs) + " | "
+              + " | ".join(f"{t / m:.2f}" for t in theirs for m in mine) + " |")
     print(f"PyTorch {torch_figures['torch']}; raw figures in {args.out}")
 
 

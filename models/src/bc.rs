@@ -4,7 +4,7 @@
 //! read as logits; cross-entropy; Adam; shuffled mini-batches from a seeded generator.
 
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::GradientsParams;
 use burn::tensor::activation::log_softmax;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use rand::SeedableRng;
@@ -74,7 +74,7 @@ pub fn train(
         .network
         .init(spec, 2, seed, &train_device)
         .map_err(ModelError::Config)?;
-    let mut optimizer = AdamConfig::new().init();
+    let mut optimizer = crate::optim::adam(1e-5, None);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut order: Vec<usize> = (0..observations.len()).collect();
     let mut epoch_loss = Vec::new();

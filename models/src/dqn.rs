@@ -37,7 +37,7 @@ use std::path::Path;
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
 use burn::nn::loss::HuberLossConfig;
 use burn::optim::grad_clipping::GradientClippingConfig;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::store::ModuleRecord;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use rand::Rng;
@@ -859,11 +859,13 @@ impl<'a> Learner<'a> {
         };
 
         let gradients = GradientsParams::from_grads(loss.backward(), &self.online);
-        self.online = self.optimizer.step(
-            config.learning_rate_at(self.state.steps),
-            self.online.clone(),
-            gradients,
-        );
+        // Moved out rather than cloned, so that the optimizer may update parameters in place
+        // (models::optim on LibTorch) when nothing else holds them; the target network holds
+        // no handle on the placeholder's parameters either way.
+        let online = std::mem::replace(&mut self.online, self.target.clone());
+        self.online =
+            self.optimizer
+                .step(config.learning_rate_at(self.state.steps), online, gradients);
 
         let scalar =
             |t: Tensor<1>| f64::from(tensor_values(t).first().copied().unwrap_or(f32::NAN));
@@ -925,10 +927,7 @@ impl std::fmt::Debug for Learner<'_> {
 fn adam(config: &DqnConfig) -> ModuleOptimizer {
     let clipping = (config.gradient_clip_norm > 0.0)
         .then_some(GradientClippingConfig::Norm(config.gradient_clip_norm));
-    AdamConfig::new()
-        .with_epsilon(config.adam_epsilon)
-        .with_grad_clipping(clipping)
-        .init()
+    crate::optim::adam(config.adam_epsilon, clipping)
 }
 
 /// Running means of TD loss and Q over [`LOSS_WINDOW`] gradient steps.

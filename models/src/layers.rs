@@ -15,13 +15,14 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use burn::tensor::ops::ConvOptions;
 
-/// `layer.forward(x)`, with LibTorch's backward pass when training on the LibTorch backend.
+/// `layer.forward(x)`. On the LibTorch backend, with the channels stored last (the layout in
+/// which LibTorch's CPU convolutions run fastest) and, when training, LibTorch's backward pass.
 ///
 /// Shapes: `x` is `[batch, channels_in, height, width]`; the result is
 /// `[batch, channels_out, height_out, width_out]`, as `Conv2d::forward`.
 pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     #[cfg(feature = "libtorch")]
-    if torch::trains_on_libtorch(&x)
+    if torch::is_libtorch(&x.device())
         && let Some(options) = symmetric_options(layer)
     {
         return torch::conv2d(layer, x, options);
@@ -105,11 +106,15 @@ pub mod torch {
     /// autodiff, burn's layers call the same LibTorch kernels).
     pub fn trains_on_libtorch<const D: usize>(x: &Tensor<D>) -> bool {
         let device = x.device();
-        device.is_autodiff()
-            && matches!(
-                device.inner().as_dispatch(),
-                burn::backend::DispatchDevice::LibTorch(_)
-            )
+        device.is_autodiff() && is_libtorch(&device)
+    }
+
+    /// Whether `device` (or the device under its autodiff) is burn's LibTorch backend.
+    pub fn is_libtorch(device: &burn::tensor::Device) -> bool {
+        matches!(
+            device.clone().inner().as_dispatch(),
+            burn::backend::DispatchDevice::LibTorch(_)
+        )
     }
 
     pub(super) fn conv2d(layer: &Conv2d, x: Tensor<4>, options: ConvOptions<2>) -> Tensor<4> {
@@ -272,7 +277,7 @@ pub mod torch {
         options: &ConvOptions<2>,
     ) -> tch::Tensor {
         tch::Tensor::conv2d(
-            &inputs[0],
+            &channels_last(&inputs[0]),
             &inputs[1],
             inputs.get(2),
             options.stride.map(|v| v as i64),
@@ -280,6 +285,31 @@ pub mod torch {
             options.dilation.map(|v| v as i64),
             options.groups as i64,
         )
+    }
+
+    /// `x` with its channels stored last (strides `[h·w·c, 1, w·c, c]`), the layout in which
+    /// LibTorch's CPU convolutions (oneDNN) run fastest; the same tensor when it is already so.
+    /// Convolutions, batch norm, ReLU, pooling and element-wise operations keep that layout, so
+    /// only the network's input is copied.
+    fn channels_last(x: &tch::Tensor) -> tch::Tensor {
+        if x.dim() != 4 || is_channels_last(x) {
+            return x.shallow_clone();
+        }
+        x.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
+    }
+
+    fn is_channels_last(x: &tch::Tensor) -> bool {
+        let (size, stride) = (x.size(), x.stride());
+        size.len() == 4 && stride[1] == 1 && stride[3] == size[1] && stride[2] == size[1] * size[3]
+    }
+
+    /// `x` flattened in the order of its storage: a view when it is contiguous in either layout.
+    fn flat(x: &tch::Tensor, like_channels_last: bool) -> tch::Tensor {
+        if like_channels_last {
+            x.permute([0, 2, 3, 1]).reshape([-1])
+        } else {
+            x.reshape([-1])
+        }
     }
 
     /// Batch norm of `x` with `gamma` and `beta` over the batch's statistics; also returns the
@@ -402,8 +432,11 @@ pub mod torch {
             }
             // The dot product reads both once; `(output * grad).sum()` would also write a
             // product the size of the output.
+            // Both flattened in the output's storage order, so that only the gradient may need
+            // a copy (when its layout differs).
+            let order = is_channels_last(&output);
             let objective =
-                tch::with_grad(|| output.reshape([-1]).dot(&output_grad.tensor.reshape([-1])));
+                tch::with_grad(|| flat(&output, order).dot(&flat(&output_grad.tensor, order)));
             let input_grads = tch::Tensor::run_backward(&[objective], &inputs, false, false);
             for (parent, grad) in parents.into_iter().zip(input_grads) {
                 grads.register::<LibTorch>(parent, TchTensor::new(grad));

@@ -4,6 +4,7 @@
 //! - [`segmenter`]: the PSPNet-style segmenter.
 //! - [`layers`]: the networks' convolution, batch norm and ReLU (LibTorch's own backward passes
 //!   when training on LibTorch).
+//! - [`optim`]: Adam (in place on LibTorch).
 //! - [`allocator`]: mimalloc's settings for training.
 //! - [`qnet`]: the Q-network (convolutions over the bird's-eye layers + an MLP over the
 //!   scalar inputs; dueling head; the ITS preset).
@@ -28,6 +29,7 @@ pub mod dqn;
 pub mod error;
 pub mod layers;
 pub mod offline;
+pub mod optim;
 pub mod packed;
 pub mod policy;
 pub mod qnet;

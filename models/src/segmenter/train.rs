@@ -28,7 +28,7 @@ use std::time::Instant;
 
 use burn::config::Config;
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsAccumulator, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 use sim::seed::derive_seed;
@@ -259,7 +259,7 @@ pub fn train(
     let mut run = Run::open(run_dir, config, resume)?;
     let device = device.clone().autodiff();
     let mut model = config.model.init_seeded(&device, config.seed)?;
-    let mut optimizer: ModuleOptimizer = AdamConfig::new().with_epsilon(1e-8).init();
+    let mut optimizer: ModuleOptimizer = crate::optim::adam(1e-8, None);
     let mut state = TrainState {
         epochs_done: 0,
         step: 0,

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::Result;
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor, TensorData};
 use clap::Args;
 use models::segmenter::loss::{LabelRef, LossTargets, segmentation_loss};
@@ -146,7 +146,7 @@ fn training_steps(config: &PspNetConfig, args: &BenchArgs, device: &Device) -> R
     let mut model = config
         .init(&ad)
         .map_err(|e| CliError::new(e.to_string(), "check the options"))?;
-    let mut optimizer = AdamConfig::new().with_epsilon(1e-8).init();
+    let mut optimizer = models::optim::adam(1e-8, None);
     let x = images(args.train_batch, args.size, &ad);
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let plane = args.size * args.size;
