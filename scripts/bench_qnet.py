@@ -13,8 +13,10 @@ joined directly, 256 hidden). Both use 2 threads (RAYON_NUM_THREADS=2; torch.set
 
 Ours is `models/examples/bench_qnet_step.rs` (release build), which calls the gradient step
 training runs use (`models::dqn::Learner::learn`). The rounds alternate (ours, PyTorch,
-ours, ...) so both see the same machine state; the figure is the median over all timed steps
-of each side (after warm-up steps in every round).
+PyTorch channels-last, ours, ...) so all see the same machine state; the figure is the median
+over all timed steps of each side (after warm-up steps in every round). PyTorch runs as its
+users write it and, to compare layout for layout, with the observations stored channels last
+(ours on LibTorch stores convolution inputs so: models::layers).
 
 With `--devices cpu,libtorch` ours also runs on burn's LibTorch backend (PyTorch's kernels
 under burn's autodiff and optimiser), from a build with `--features libtorch` in
@@ -73,7 +75,10 @@ def ours(network, steps, warmup, device):
     return json.loads(r.stdout)
 
 
-def torch_step_times(network, steps, warmup):
+def torch_step_times(network, steps, warmup, channels_last=False):
+    """PyTorch's step times; with `channels_last`, the observations are stored channels last
+    (`torch.channels_last`, converted inside the timed step), the layout ours uses for
+    convolutions on LibTorch (models::layers)."""
     import numpy as np
     import torch
     from torch import nn
@@ -131,6 +136,9 @@ def torch_step_times(network, steps, warmup):
 
     def step(b):
         t = {k: torch.from_numpy(v) for k, v in b.items()}
+        if channels_last:
+            for k in ("layers", "next_layers"):
+                t[k] = t[k].contiguous(memory_format=torch.channels_last)
         with torch.no_grad():
             next_q_target = target(t["next_layers"], t["next_scalars"])
             best = online(t["next_layers"], t["next_scalars"]).argmax(1, keepdim=True)
@@ -172,7 +180,7 @@ def main():
     results = []
     for network in args.networks.split(","):
         ours_times = {d: [] for d in devices}
-        torch_times, rounds = [], []
+        torch_times, torch_cl_times, rounds = [], [], []
         for r in range(args.rounds):
             round_ = {}
             for d in devices:
@@ -182,6 +190,9 @@ def main():
             t = torch_step_times(network, args.steps, args.warmup)
             torch_times += t
             round_["torch_median_ms"] = statistics.median(t)
+            t = torch_step_times(network, args.steps, args.warmup, channels_last=True)
+            torch_cl_times += t
+            round_["torch_channels_last_median_ms"] = statistics.median(t)
             rounds.append(round_)
             print(f"{network} round {r + 1}: " + ", ".join(f"{k} {v:.1f}" for k, v in round_.items()), file=sys.stderr)
         torch_median = statistics.median(torch_times)
@@ -191,6 +202,7 @@ def main():
             "threads": THREADS,
             "timed_steps_per_side": len(torch_times),
             "torch_median_ms": round(torch_median, 2),
+            "torch_channels_last_median_ms": round(statistics.median(torch_cl_times), 2),
             "rounds": rounds,
         }
         for d in devices:
@@ -199,8 +211,11 @@ def main():
             median = statistics.median(ours_times[d])
             result[f"{key}_median_ms"] = round(median, 2)
             result[f"torch_over_{key}"] = round(torch_median / median, 3)
+            cl_median = result["torch_channels_last_median_ms"]
+            result[f"torch_channels_last_over_{key}"] = round(cl_median / median, 3)
             print(f"{network}: {key} {median:.1f} ms, PyTorch {torch_median:.1f} ms, "
-                  f"PyTorch/{key} = {torch_median / median:.2f}")
+                  f"PyTorch/{key} = {torch_median / median:.2f}; PyTorch channels-last {cl_median:.1f} ms, "
+                  f"/{key} = {cl_median / median:.2f}")
         results.append(result)
     report = {
         "what": "one DQN gradient step (Double DQN targets, Huber TD loss, backward, Adam), batch 32, 2 threads",
