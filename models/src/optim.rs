@@ -3,10 +3,10 @@
 //!
 //! burn's Adam updates a parameter with about a dozen tensor operations, each writing a new
 //! tensor. On LibTorch, [`adam`]'s optimizer updates the moments and the parameter in place, in
-//! PyTorch's own formulation (`lerp_` for the moments, one `addcdiv_` for the step): 9 ms of the
-//! segmenter's training step fell to a third (docs/benchmarks.md). On every other backend it is
-//! burn's `Adam`, unchanged. Both keep burn's `AdamState`, so checkpoints are the same files and
-//! a run can resume on either.
+//! PyTorch's own formulation (`lerp_` for the moments, one `addcdiv_` for the step; the training
+//! steps' timings are in docs/benchmarks.md). On every other backend it is burn's `Adam`,
+//! unchanged. Both keep burn's `AdamState`, so checkpoints are the same files and a run can
+//! resume on either.
 
 use burn::optim::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamConfig, AdamState, LearningRate, ModuleOptimizer, Optimizer};
