@@ -859,9 +859,9 @@ impl<'a> Learner<'a> {
         };
 
         let gradients = GradientsParams::from_grads(loss.backward(), &self.online);
-        // Moved out rather than cloned, so that the optimizer may update parameters in place
-        // (models::optim on LibTorch) when nothing else holds them; the target network holds
-        // no handle on the placeholder's parameters either way.
+        // Moved out rather than cloned, so that the optimizer may update the parameters in
+        // place (models::optim on LibTorch) when nothing else holds them; the placeholder, a
+        // handle on the target network, is replaced straight after.
         let online = std::mem::replace(&mut self.online, self.target.clone());
         self.online =
             self.optimizer

@@ -7,8 +7,9 @@
 //! element-wise passes, ReLU's gradient as a comparison and a masked fill), and `burn-tch` keeps
 //! those defaults. On LibTorch, [`conv2d`], [`batch_norm`] and [`relu`] record the layer in
 //! LibTorch's autograd as well and hand its backward to LibTorch (burn's backend-extension
-//! mechanism: the `torch` module, with the `libtorch` feature); every other backend runs burn's
-//! own layer unchanged. Measured in docs/benchmarks.md (segmenter and DQN steps).
+//! mechanism: the `torch` module, with the `libtorch` feature), and [`conv2d`] stores its input
+//! channels last there, in training and inference alike; every other backend runs burn's own
+//! layer unchanged. Measured in docs/benchmarks.md (segmenter and DQN steps).
 
 use burn::nn::conv::Conv2d;
 use burn::nn::{BatchNorm, PaddingConfig2d};
@@ -191,8 +192,9 @@ pub mod torch {
         ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
     }
 
-    // The layers on tensors without autodiff (the extension needs them; `trains_on_libtorch`
-    // routes only autodiff tensors here): LibTorch's forward passes.
+    // The layers on tensors without autodiff: LibTorch's forward passes. Only `conv2d` comes
+    // here (in inference, for the channels-last layout); batch norm and ReLU come only when
+    // training, but the extension needs all of them.
     impl TorchLayers for LibTorch {
         fn conv2d_torch_backward(
             x: TchTensor,
@@ -431,9 +433,8 @@ pub mod torch {
                 return;
             }
             // The dot product reads both once; `(output * grad).sum()` would also write a
-            // product the size of the output.
-            // Both flattened in the output's storage order, so that only the gradient may need
-            // a copy (when its layout differs).
+            // product the size of the output. Both are flattened in the output's storage order,
+            // so only the gradient may need a copy (when its layout differs).
             let order = is_channels_last(&output);
             let objective =
                 tch::with_grad(|| flat(&output, order).dot(&flat(&output_grad.tensor, order)));
