@@ -627,6 +627,25 @@ fn same_run(old: &TrainingConfig, new: &TrainingConfig) -> bool {
     old == *new
 }
 
+/// The short side a model was trained at, from the run folder it belongs to: `model_dir`
+/// itself or its parent (a run's `best/` or `checkpoint/`). `None` when no run folder holds
+/// it (a model folder copied elsewhere). A network trained at one scale sees objects at
+/// another as other sizes, so evaluating it at its training size is the sensible default.
+pub fn trained_short_side(model_dir: &Path) -> Result<Option<u32>> {
+    let candidates = [Some(model_dir), model_dir.parent()];
+    let Some(path) = candidates
+        .into_iter()
+        .flatten()
+        .map(|dir| dir.join(TRAIN_CONFIG_FILE))
+        .find(|path| path.is_file())
+    else {
+        return Ok(None);
+    };
+    let config = TrainingConfig::load(&path)
+        .map_err(|e| SegmenterError::invalid(&path, format!("not a training config: {e}")))?;
+    Ok(Some(config.size))
+}
+
 /// Writes a folder by filling a temporary sibling and swapping it in: `dest` → `.old`,
 /// temporary → `dest`, `.old` removed. A kill between the two renames leaves `.old`, which
 /// [`recover_dir`] puts back.
@@ -698,6 +717,26 @@ mod tests {
         assert!((c.learning_rate_at(50, 100) - 0.5).abs() < 1e-12);
         let constant = TrainingConfig::new(PspNetConfig::new());
         assert_eq!(constant.learning_rate_at(99, 100), 1e-4);
+    }
+
+    #[test]
+    fn a_runs_models_know_their_training_size() -> Result<()> {
+        let root = tempfile::tempdir().map_err(|e| SegmenterError::io(Path::new("tmp"), e))?;
+        let run = root.path().join("run");
+        let best = run.join(BEST_DIR);
+        std::fs::create_dir_all(&best).map_err(|e| SegmenterError::io(&best, e))?;
+        // A model folder outside any run: no size to go by.
+        assert_eq!(trained_short_side(&best)?, None);
+        let config = TrainingConfig::new(PspNetConfig::new()).with_size(384);
+        write_json(&run.join(TRAIN_CONFIG_FILE), &config)?;
+        assert_eq!(trained_short_side(&best)?, Some(384));
+        assert_eq!(trained_short_side(&run)?, Some(384));
+        // A damaged train.json is an error naming it, not a silent fallback.
+        std::fs::write(run.join(TRAIN_CONFIG_FILE), "{")
+            .map_err(|e| SegmenterError::io(&run, e))?;
+        let err = trained_short_side(&best).err().map(|e| e.to_string());
+        assert!(err.is_some_and(|e| e.contains(TRAIN_CONFIG_FILE)));
+        Ok(())
     }
 
     #[test]

@@ -14,7 +14,7 @@ use serde::Serialize;
 
 use super::{
     Context, ModelArgs, model_dir, open_model, open_sources, parse_source, segmenter_error,
-    with_threads,
+    short_side, with_threads,
 };
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 
@@ -84,6 +84,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         SplitArg::All => Split::All,
     };
     let sources = open_sources(&args.data, split)?;
+    let size = args.model.size()?;
     if let Some(empty) = sources.iter().find(|s| s.items.is_empty()) {
         return Err(crate::error::CliError::file(
             empty.root(),
@@ -102,7 +103,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             &model,
             &config,
             &sources,
-            args.model.short_side(),
+            short_side(size),
             args.limit,
             &device,
             |_, _, _| {},
@@ -112,7 +113,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     progress.step("writing the report");
 
     let classes = class_names(config.classes);
-    let report = eval_report(args, &evaluation, &classes, split_name(args.split));
+    let report = eval_report(args, size, &evaluation, &classes, split_name(args.split));
     let dir = AtomicDir::create(&out_path, EVAL_MARKERS)?;
     let json = serde_json::to_string_pretty(&report)? + "\n";
     write_file_atomic(&dir.path().join(METRICS_JSON), json.as_bytes())?;
@@ -143,13 +144,19 @@ fn split_name(split: SplitArg) -> String {
     .to_owned()
 }
 
-fn eval_report(args: &EvalArgs, e: &Evaluation, classes: &[String], split: String) -> EvalReport {
+fn eval_report(
+    args: &EvalArgs,
+    size: u32,
+    e: &Evaluation,
+    classes: &[String],
+    split: String,
+) -> EvalReport {
     let names: Vec<&str> = classes.iter().map(String::as_str).collect();
     EvalReport {
         model: model_dir(&args.model.model),
         datasets: args.data.iter().map(|d| d.path.clone()).collect(),
         split,
-        size: args.model.size,
+        size,
         images: e.images,
         overall: e.overall.summary(&names),
         per_dataset: e

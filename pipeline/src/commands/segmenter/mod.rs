@@ -24,7 +24,7 @@ use burn::tensor::Device;
 use clap::{Args, Subcommand};
 use models::segmenter::data::{Source, SourceSpec, Split};
 use models::segmenter::files::{MODEL_CONFIG_FILE, load_model};
-use models::segmenter::train::BEST_DIR;
+use models::segmenter::train::{BEST_DIR, trained_short_side};
 use models::segmenter::{PspNet, PspNetConfig, SegmenterError};
 
 use super::Context;
@@ -59,15 +59,31 @@ pub struct ModelArgs {
     pub model: PathBuf,
 
     /// Short side the images are resized to before the network (predictions are scaled
-    /// back to the image's size); 0 keeps the images' own size.
-    #[arg(long, value_name = "PX", default_value_t = 256)]
-    pub size: u32,
+    /// back to the image's size); 0 keeps the images' own size [default: the size the model
+    /// was trained at (its run folder's train.json), else 256].
+    #[arg(long, value_name = "PX")]
+    pub size: Option<u32>,
 }
 
+/// The short side when neither `--size` nor a training run gives one.
+const DEFAULT_SHORT_SIDE: u32 = 256;
+
 impl ModelArgs {
-    pub fn short_side(&self) -> Option<u32> {
-        (self.size > 0).then_some(self.size)
+    /// `--size`, else the model's training size, else 256; 0 means the images' own size.
+    pub fn size(&self) -> Result<u32> {
+        if let Some(size) = self.size {
+            return Ok(size);
+        }
+        let trained = trained_short_side(&model_dir(&self.model)).map_err(|e| {
+            segmenter_error(e, "give --size, or repair the run folder's train.json")
+        })?;
+        Ok(trained.unwrap_or(DEFAULT_SHORT_SIDE))
     }
+}
+
+/// The short side to resize to for a `--size`: `None` (0) keeps the images' own size.
+pub fn short_side(size: u32) -> Option<u32> {
+    (size > 0).then_some(size)
 }
 
 /// A model folder, or a run folder's best model.
