@@ -50,6 +50,10 @@ pub const STATE_FILE: &str = "state.json";
 pub const OPTIMIZER_FILE: &str = "optimizer.bpk";
 pub const METRICS_FILE: &str = "metrics.json";
 
+/// The short side images are trained at unless a run says otherwise; also what a model
+/// outside a run folder is run at (see [`trained_short_side`]).
+pub const DEFAULT_SHORT_SIDE: u32 = 256;
+
 /// Seed stage of the dropout masks.
 const STAGE_DROPOUT: u64 = 0x5e6_0003;
 
@@ -79,7 +83,7 @@ pub struct TrainingConfig {
     #[config(default = 0)]
     pub warmup_steps: usize,
     /// Short side of the images before the random scale (training and validation).
-    #[config(default = 256)]
+    #[config(default = "DEFAULT_SHORT_SIDE")]
     pub size: u32,
     /// Side of the square training crops.
     #[config(default = 256)]

@@ -24,7 +24,7 @@ use burn::tensor::Device;
 use clap::{Args, Subcommand};
 use models::segmenter::data::{Source, SourceSpec, Split};
 use models::segmenter::files::{MODEL_CONFIG_FILE, load_model};
-use models::segmenter::train::{BEST_DIR, trained_short_side};
+use models::segmenter::train::{BEST_DIR, DEFAULT_SHORT_SIDE, trained_short_side};
 use models::segmenter::{PspNet, PspNetConfig, SegmenterError};
 
 use super::Context;
@@ -65,11 +65,9 @@ pub struct ModelArgs {
     pub size: Option<u32>,
 }
 
-/// The short side when neither `--size` nor a training run gives one.
-const DEFAULT_SHORT_SIDE: u32 = 256;
-
 impl ModelArgs {
-    /// `--size`, else the model's training size, else 256; 0 means the images' own size.
+    /// `--size`, else the model's training size, else the training default (256); 0 means
+    /// the images' own size.
     pub fn size(&self) -> Result<u32> {
         if let Some(size) = self.size {
             return Ok(size);
