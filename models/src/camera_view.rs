@@ -50,7 +50,7 @@ enum Labeller {
     /// The trained segmenter on the colour image.
     Segmenter {
         model: Box<PspNet>,
-        config: PspNetConfig,
+        config: Box<PspNetConfig>,
         device: Device,
     },
     /// The renderer's exact labels (no segmenter): the upper bound of the view.
@@ -95,7 +95,7 @@ impl CameraSegmentation {
             config,
             Labeller::Segmenter {
                 model: Box::new(model),
-                config: seg_config,
+                config: Box::new(seg_config),
                 device: device.clone(),
             },
         )

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use models::segmenter::PspNetConfig;
-use models::segmenter::files::{export_safetensors, import_safetensors};
+use models::segmenter::files::{config_from_value, export_safetensors, import_safetensors};
 use safetensors::SafeTensors;
 
 fn data_dir() -> PathBuf {
@@ -48,8 +48,12 @@ fn segmenter_reference_outputs_match_pytorch() {
     let configs = configs();
     assert_eq!(configs.len(), 2);
     for (name, config) in &configs {
-        let config: PspNetConfig =
-            serde_json::from_value(config.clone()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        // Written before `fine_skip_channels` existed: it loads with the default (off), as
+        // users' older model.json files do.
+        assert!(config.get("fine_skip_channels").is_none());
+        let config: PspNetConfig = config_from_value(config.clone(), &PspNetConfig::new())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(config.fine_skip_channels, 0);
         let weights = data_dir().join(format!("segmenter_reference_{name}.safetensors"));
         let model = config
             .init(&device)

@@ -33,7 +33,8 @@ pub struct Config {
     /// `[run]`: the maps and stage sizes of `pipeline run`.
     #[serde(default)]
     pub run: crate::commands::run::settings::RunConfig,
-    /// `[logs.roles]`: which topic of a log is the ego pose, the GPS, the objects, the camera.
+    /// `[logs.roles]`: which topic of a log is the ego pose, the GPS, the objects, the camera;
+    /// `[logs.decisions]`: how drivers' go / wait decisions are labelled.
     #[serde(default)]
     pub logs: LogsConfig,
     /// The folder of the file, for its relative paths (not part of the TOML).
@@ -47,6 +48,8 @@ pub struct Config {
 pub struct LogsConfig {
     /// Topics named for roles; the others are detected (`datasets::logs::roles`).
     pub roles: datasets::logs::roles::RoleConfig,
+    /// The go / wait labelling of `replay eval` and `agent train --offline`.
+    pub decisions: datasets::logs::decisions::LabelConfig,
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

@@ -3,9 +3,13 @@
 //!
 //! An approach is the part of a track before it crosses a roundabout's yield line towards
 //! the ring, up to `approach_m` of driving before the line. Its frames are labelled:
-//! - when the driver stopped (speed under `stop_mps`) before the line: wait up to the last
-//!   stopped frame, ambiguous for `decision_s` after it (the moment the driver decided to
-//!   go is not seen exactly), go afterwards;
+//! - when the driver stopped (speed under `stop_mps`) before the line: wait from the onset
+//!   of the braking that ended in the first stop up to the last stopped frame, ambiguous for
+//!   `decision_s` after it (the moment the driver decided to go is not seen exactly), go
+//!   afterwards. Frames before that braking began are ambiguous too: the driver was still
+//!   rolling on towards the line, and whether a gap would come before they reached it was
+//!   not yet decided in anything a frame shows (`wait_from`; the issue's wait is "stopped /
+//!   braking to stop before the line");
 //! - when the driver slowed to a crawl (under `crawl_mps`) without stopping: ambiguous up
 //!   to the slowest frame (yielding or just braking for the curve?), go afterwards;
 //! - otherwise go throughout.
@@ -49,6 +53,22 @@ pub struct LabelConfig {
     /// A vehicle whose centre is this far ahead of the driver's centre or less (and
     /// within half a lane sideways) makes a wait frame queued, m.
     pub queue_gap_m: f64,
+    /// Where the wait frames of an approach with a stop begin.
+    pub wait_from: WaitFrom,
+    /// With `wait_from = "braking"`: the braking begins at the last frame before the first
+    /// stop whose speed is within this of the fastest frame before that stop, m/s.
+    pub braking_drop_mps: f64,
+}
+
+/// Where the wait frames of an approach that stops before the line begin.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WaitFrom {
+    /// At the onset of the braking that ends in the first stop; earlier frames are
+    /// ambiguous.
+    Braking,
+    /// At the approach's first frame (the labels before 2026-11-26).
+    ApproachStart,
 }
 
 impl Default for LabelConfig {
@@ -60,6 +80,8 @@ impl Default for LabelConfig {
             decision_s: 1.0,
             min_approach_s: 1.0,
             queue_gap_m: 8.0,
+            wait_from: WaitFrom::Braking,
+            braking_drop_mps: 0.5,
         }
     }
 }
@@ -146,10 +168,13 @@ pub fn approaches(map: &Map, frames: &[LogFrame], config: &LabelConfig) -> Vec<A
             .map(|p| p.1 as f64 * 1e-9)
             .collect();
         let last_stop = v.iter().rposition(|s| *s < config.stop_mps);
+        let wait_start = braking_onset(&v, config);
         let labels: Vec<Decision> = match last_stop {
             Some(stop) => (0..v.len())
                 .map(|i| {
-                    if i <= stop {
+                    if i < wait_start {
+                        Decision::Ambiguous
+                    } else if i <= stop {
                         Decision::Wait
                     } else if t[i] - t[stop] <= config.decision_s {
                         Decision::Ambiguous
@@ -192,6 +217,23 @@ pub fn approaches(map: &Map, frames: &[LogFrame], config: &LabelConfig) -> Vec<A
     out
 }
 
+/// The first wait frame of an approach with speeds `v`: with [`WaitFrom::Braking`], the last
+/// frame before the first stop still within `braking_drop_mps` of the fastest frame before
+/// it (from there the driver slowed until stopping); 0 otherwise, or without a stop.
+fn braking_onset(v: &[f64], config: &LabelConfig) -> usize {
+    let Some(first_stop) = v.iter().position(|s| *s < config.stop_mps) else {
+        return 0;
+    };
+    if config.wait_from == WaitFrom::ApproachStart || first_stop == 0 {
+        return 0;
+    }
+    let peak = v[..first_stop].iter().copied().fold(f64::MIN, f64::max);
+    v[..first_stop]
+        .iter()
+        .rposition(|s| *s >= peak - config.braking_drop_mps)
+        .unwrap_or(0)
+}
+
 /// Whether another vehicle stands right ahead of `track` in `frame`.
 fn has_leader(frame: &LogFrame, track: u32, gap_m: f64) -> bool {
     let Some(me) = frame.actors.iter().find(|a| a.id == track) else {
@@ -209,6 +251,26 @@ fn has_leader(frame: &LogFrame, track: u32, gap_m: f64) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn wait_frames_begin_where_the_braking_to_the_first_stop_began() {
+        // Cruising near 8 m/s, braking from frame 4, stopped at 9-10, creeping, stopped
+        // again at 12, then away.
+        let v = [
+            7.8, 8.0, 7.7, 7.9, 7.6, 7.0, 5.0, 3.0, 1.0, 0.2, 0.1, 0.8, 0.3, 2.0, 4.0,
+        ];
+        let config = LabelConfig::default();
+        // Frame 4 is the last within 0.5 m/s of the 8.0 peak before the first stop.
+        assert_eq!(braking_onset(&v, &config), 4);
+        let from_start = LabelConfig {
+            wait_from: WaitFrom::ApproachStart,
+            ..LabelConfig::default()
+        };
+        assert_eq!(braking_onset(&v, &from_start), 0);
+        // No stop, or stopped from the first frame: nothing before the wait frames.
+        assert_eq!(braking_onset(&[8.0, 6.0, 4.0, 3.0], &config), 0);
+        assert_eq!(braking_onset(&[0.1, 0.2, 3.0], &config), 0);
+    }
 
     #[test]
     fn segments_cross_only_when_they_do() {

@@ -24,6 +24,49 @@ pub const MODEL_CONFIG_FILE: &str = "model.json";
 pub const MODEL_RECORD_FILE: &str = "model.bpk";
 pub const MODEL_SAFETENSORS_FILE: &str = "model.safetensors";
 
+/// Reads a config file (`model.json`, `train.json`) written by this or an earlier version:
+/// keys the file lacks (settings added since it was written) take their values from
+/// `defaults`, the value that reproduces the earlier behaviour. burn's `Config::load` would
+/// reject such a file. Errors are messages for the caller to attach the path to.
+pub fn load_config<C>(path: &Path, defaults: &C) -> std::result::Result<C, String>
+where
+    C: serde::Serialize + serde::de::DeserializeOwned,
+{
+    let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+    let file: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+    config_from_value(file, defaults)
+}
+
+/// [`load_config`] on a parsed JSON value.
+pub fn config_from_value<C>(
+    value: serde_json::Value,
+    defaults: &C,
+) -> std::result::Result<C, String>
+where
+    C: serde::Serialize + serde::de::DeserializeOwned,
+{
+    let mut merged = serde_json::to_value(defaults).map_err(|e| e.to_string())?;
+    overlay(&mut merged, value);
+    serde_json::from_value(merged).map_err(|e| e.to_string())
+}
+
+/// Puts `top` over `base`: objects key by key (recursively), anything else replaced.
+fn overlay(base: &mut serde_json::Value, top: serde_json::Value) {
+    match (base, top) {
+        (serde_json::Value::Object(base), serde_json::Value::Object(top)) => {
+            for (key, value) in top {
+                match base.get_mut(&key) {
+                    Some(slot) => overlay(slot, value),
+                    None => {
+                        base.insert(key, value);
+                    }
+                }
+            }
+        }
+        (base, top) => *base = top,
+    }
+}
+
 /// Writes `file` by writing a temporary sibling and renaming it, so a kill never leaves a
 /// half-written file under the final name.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
@@ -77,7 +120,7 @@ pub fn load_model(dir: &Path, device: &Device) -> Result<(PspNet, PspNetConfig)>
             ),
         ));
     }
-    let config = PspNetConfig::load(&config_path).map_err(|e| {
+    let config = load_config(&config_path, &PspNetConfig::new()).map_err(|e| {
         SegmenterError::invalid(&config_path, format!("not a segmenter config: {e}"))
     })?;
     config

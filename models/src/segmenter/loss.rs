@@ -20,6 +20,12 @@
 //! Pixels labelled [`IGNORE`] (255) count nothing. With class weights `w` the loss is
 //! `Σ w[y]·loss / Σ w[y]` over counted pixels, as PyTorch's `CrossEntropyLoss(weight=...)`.
 //! Evaluation applies the same rule to predictions (see `eval`).
+//!
+//! [`dice_loss`], optional (`TrainingConfig::dice_weight`), is the soft Dice loss of
+//! segmentation_models.pytorch: per class, `1 − 2 Σ p·t / (Σ p + Σ t)` over the batch's
+//! pixels, averaged over the classes the batch's labels hold. It weighs each class by its
+//! overlap rather than its pixel count, as IoU does. Only pixels with exactly one acceptable
+//! class count in it (a pixel a source may have merged, road on CamVid, does not).
 
 use burn::tensor::{Device, Tensor, TensorData};
 
@@ -34,6 +40,10 @@ pub struct LossTargets {
     pub weights: Tensor<3>,
     /// Σ weights, so the mean needs no reduction on the device.
     pub weight_sum: f64,
+    /// `[B, 1, H, W]`: 1 where the pixel has exactly one acceptable class (for [`dice_loss`]).
+    pub single: Tensor<4>,
+    /// `[classes]`: 1 for the classes some `single` pixel is labelled with.
+    pub present: Tensor<1>,
 }
 
 /// One label of a batch and the classes its source cannot label.
@@ -58,6 +68,8 @@ impl LossTargets {
         let plane = h * w;
         let mut allowed = vec![0.0f32; labels.len() * classes * plane];
         let mut weights = vec![0.0f32; labels.len() * plane];
+        let mut single = vec![0.0f32; labels.len() * plane];
+        let mut present = vec![0.0f32; classes];
         for (b, label) in labels.iter().enumerate() {
             for (i, &y) in label.pixels.iter().enumerate().take(plane) {
                 let at = |c: usize| (b * classes + c) * plane + i;
@@ -69,11 +81,17 @@ impl LossTargets {
                 }
                 weights[b * plane + i] = class_weights[y];
                 allowed[at(y)] = 1.0;
+                let mut merged = false;
                 for c in (0..classes).filter(|&c| {
                     label.unlabelable.get(c).copied().unwrap_or(false)
                         && datasets::may_stand_for(y as u8, c as u8)
                 }) {
                     allowed[at(c)] = 1.0;
+                    merged = true;
+                }
+                if !merged {
+                    single[b * plane + i] = 1.0;
+                    present[y] = 1.0;
                 }
             }
         }
@@ -85,6 +103,8 @@ impl LossTargets {
             ),
             weights: Tensor::from_data(TensorData::new(weights, [labels.len(), h, w]), device),
             weight_sum,
+            single: Tensor::from_data(TensorData::new(single, [labels.len(), 1, h, w]), device),
+            present: Tensor::from_data(TensorData::new(present, [classes]), device),
         }
     }
 }
@@ -104,6 +124,27 @@ pub fn segmentation_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> 
     } else {
         weighted.mul_scalar(0.0)
     }
+}
+
+/// The soft Dice loss of the module docs: `logits [B, classes, H, W]` with `targets` -> a
+/// scalar `[1]` in [0, 1] (0 when no pixel counts).
+pub fn dice_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> {
+    let [_, classes, _, _] = logits.dims();
+    let probabilities = burn::tensor::activation::softmax(logits, 1) * targets.single.clone();
+    let truth = targets.allowed.clone() * targets.single.clone();
+    let per_class = |t: Tensor<4>| -> Tensor<1> {
+        t.swap_dims(0, 1)
+            .reshape([classes as i32, -1])
+            .sum_dim(1)
+            .reshape([classes])
+    };
+    let overlap = per_class(probabilities.clone() * truth.clone());
+    let total = per_class(probabilities) + per_class(truth);
+    // smp's smoothing 0 and eps 1e-7: an absent class would read 0 / 0, and is masked out.
+    let dice = overlap.mul_scalar(2.0) / total.clamp_min(1e-7);
+    let present = targets.present.clone();
+    let count = present.clone().sum();
+    ((present.clone() - dice * present).sum() / count.clamp_min(1.0)).reshape([1])
 }
 
 #[cfg(test)]
@@ -213,5 +254,46 @@ mod tests {
             &device(),
         );
         assert_eq!(scalar(segmentation_loss(logits(), &t)), 0.0);
+    }
+
+    #[test]
+    fn dice_averages_the_overlap_of_the_classes_the_labels_hold() {
+        let targets_of = |labels: &[u8; 4], unlabelable: [bool; 3]| {
+            LossTargets::new(
+                &[LabelRef {
+                    pixels: labels,
+                    unlabelable: &unlabelable,
+                }],
+                [1, 4],
+                &[1.0f32; 3],
+                &device(),
+            )
+        };
+        let p = burn::tensor::activation::softmax(logits(), 1)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap_or_default();
+        let p = |c: usize, i: usize| p[c * 4 + i];
+        // Pixels 0 and 3 are class 0, pixel 1 class 1, pixel 2 ignored; class 2 is absent
+        // and does not count.
+        let dice = scalar(dice_loss(
+            logits(),
+            &targets_of(&[0, 1, 255, 0], [false; 3]),
+        ));
+        let class0 = 2.0 * (p(0, 0) + p(0, 3)) / (p(0, 0) + p(0, 1) + p(0, 3) + 2.0);
+        let class1 = 2.0 * p(1, 1) / (p(1, 0) + p(1, 1) + p(1, 3) + 1.0);
+        let expected = 1.0 - (class0 + class1) / 2.0;
+        assert!((dice - expected).abs() < 1e-5, "{dice} vs {expected}");
+        // A road pixel of a source that cannot label markings (merged) does not count:
+        // only pixel 3 (vehicle) does.
+        let merged = scalar(dice_loss(
+            logits(),
+            &targets_of(&[255, 0, 255, 2], [false, true, false]),
+        ));
+        let expected = 1.0 - 2.0 * p(2, 3) / (p(2, 3) + 1.0);
+        assert!((merged - expected).abs() < 1e-5, "{merged} vs {expected}");
+        // Nothing counted: zero.
+        let none = scalar(dice_loss(logits(), &targets_of(&[255; 4], [false; 3])));
+        assert_eq!(none, 0.0);
     }
 }

@@ -1,11 +1,12 @@
-//! The network: a ResNet-style encoder of basic blocks, a pyramid pooling module, an
-//! optional light skip refinement at stride 4, a 1×1 classifier and bilinear upsampling to
+//! The network: a ResNet-style encoder of basic blocks, a pyramid pooling module, optional
+//! light skip refinements at stride 4 and 2, a 1×1 classifier and bilinear upsampling to
 //! the input size, as segmentation_models.pytorch's PSPNet (which the golf-cart thesis used),
 //! plus an optional auxiliary head for training.
 //!
 //! ```text
 //! image [B,3,H,W]
-//!  └ stem: conv 7×7/2 (64w) BN ReLU, max-pool 3×3/2           stride 4
+//!  └ stem: conv 7×7/2 (64w) BN ReLU                            stride 2   ─┐ fine skip
+//!    max-pool 3×3/2                                             stride 4    │ refinement
 //!  └ stage 1: basic blocks (64w)                                stride 4   ─┐ skip refinement
 //!  └ stage 2: basic blocks (128w), first block strided          stride 8    │ (optional) and
 //!  └ stage 3, 4 (depth 4, 5): 256w, 512w, strided or dilated                │ aux head input
@@ -14,6 +15,8 @@
 //!      concat [branches..., features], 1×1 conv to psp_channels BN ReLU, channel dropout
 //!  └ (skip refinement: 1×1 convs of the pyramid output and of stage 1 to skip_channels,
 //!      concat at stride 4, 3×3 conv BN ReLU)
+//!  └ (fine skip refinement: the same with the stem's output, to fine_skip_channels at
+//!      stride 2)
 //!  └ classifier 1×1 -> classes, bilinear upsampling to H×W     logits [B,classes,H,W]
 //! ```
 //!
@@ -72,6 +75,11 @@ pub struct PspNetConfig {
     /// Channels of the light skip refinement at stride 4; 0 turns it off.
     #[config(default = 0)]
     pub skip_channels: usize,
+    /// Channels of a second refinement at stride 2, on the stem's output (after the stride-4
+    /// one when both are on); 0 turns it off. A head at stride 4 of a 256-px image blurs
+    /// objects a few pixels wide: docs/segmenter.md measures what it costs.
+    #[config(default = 0)]
+    pub fine_skip_channels: usize,
     /// An auxiliary classifier on the second-to-last encoder stage (training only).
     #[config(default = false)]
     pub aux_head: bool,
@@ -177,10 +185,23 @@ impl PspNetConfig {
         let skip = (self.skip_channels > 0).then(|| {
             SkipRefinement::new(widths[1], self.psp_channels, self.skip_channels, &mut init)
         });
-        let head_channels = if self.skip_channels > 0 {
+        let coarse_channels = if self.skip_channels > 0 {
             self.skip_channels
         } else {
             self.psp_channels
+        };
+        let fine_skip = (self.fine_skip_channels > 0).then(|| {
+            SkipRefinement::new(
+                widths[0],
+                coarse_channels,
+                self.fine_skip_channels,
+                &mut init,
+            )
+        });
+        let head_channels = if self.fine_skip_channels > 0 {
+            self.fine_skip_channels
+        } else {
+            coarse_channels
         };
         let classifier = init.conv(head_channels, self.classes, 1, 1, 1, true);
         let aux = self
@@ -190,6 +211,7 @@ impl PspNetConfig {
             encoder,
             pyramid,
             skip,
+            fine_skip,
             classifier,
             aux,
             dropout: self.dropout,
@@ -416,16 +438,27 @@ impl Encoder {
         Encoder { stem, pool, stages }
     }
 
-    /// The output of every stage: `[B, 3, H, W] -> [[B, C_s, H / stride_s, W / stride_s]; stages]`.
-    pub fn forward(&self, images: Tensor<4>) -> Vec<Tensor<4>> {
-        let mut x = self.pool.forward(relu(self.stem.forward(images)));
-        let mut outputs = Vec::with_capacity(self.stages.len());
+    /// The stem's output and every stage's: `[B, 3, H, W] -> EncoderFeatures { stem:
+    /// [B, C_0, H / 2, W / 2], stages: [[B, C_s, H / stride_s, W / stride_s]; stages] }`.
+    pub fn forward(&self, images: Tensor<4>) -> EncoderFeatures {
+        let stem = relu(self.stem.forward(images));
+        let mut x = self.pool.forward(stem.clone());
+        let mut stages = Vec::with_capacity(self.stages.len());
         for stage in &self.stages {
             x = stage.forward(x);
-            outputs.push(x.clone());
+            stages.push(x.clone());
         }
-        outputs
+        EncoderFeatures { stem, stages }
     }
+}
+
+/// What the encoder gives the heads.
+#[derive(Debug)]
+pub struct EncoderFeatures {
+    /// After the stem's convolution (stride 2, before the max-pool).
+    pub stem: Tensor<4>,
+    /// After each stage.
+    pub stages: Vec<Tensor<4>>,
 }
 
 /// One pyramid branch: pool to `bin`×`bin`, 1×1 conv (+BN unless the bin is 1, where a
@@ -484,8 +517,9 @@ impl PyramidPooling {
     }
 }
 
-/// The light skip refinement: pyramid output and stage-1 features, each 1×1-projected to
-/// `channels`, concatenated at stride 4 and fused by a 3×3 conv.
+/// A light skip refinement: coarse features (the pyramid output, or the stride-4
+/// refinement's) and finer encoder features (stage 1's at stride 4, the stem's at stride 2),
+/// each 1×1-projected to `channels`, concatenated at the finer size and fused by a 3×3 conv.
 #[derive(Module, Debug)]
 pub struct SkipRefinement {
     pub low: ConvNorm,
@@ -542,6 +576,7 @@ pub struct PspNet {
     pub encoder: Encoder,
     pub pyramid: PyramidPooling,
     pub skip: Option<SkipRefinement>,
+    pub fine_skip: Option<SkipRefinement>,
     pub classifier: Conv2d,
     pub aux: Option<AuxHead>,
     pub dropout: f64,
@@ -571,10 +606,15 @@ impl PspNet {
             .sum();
         total += branches + self.pyramid.bottleneck.macs(size).0;
         let mut head_size = size;
-        if let Some(skip) = &self.skip {
-            let low = block_sizes.first().copied().unwrap_or(size);
-            total += skip.high.macs(size).0 + skip.low.macs(low).0 + skip.fuse.macs(low).0;
-            head_size = low;
+        let refinements = [
+            (&self.skip, block_sizes.first().copied().unwrap_or(size)),
+            (&self.fine_skip, stem_out),
+        ];
+        for (refinement, low) in refinements {
+            if let Some(r) = refinement {
+                total += r.high.macs(head_size).0 + r.low.macs(low).0 + r.fuse.macs(low).0;
+                head_size = low;
+            }
         }
         total + conv_macs(&self.classifier, head_size).0
     }
@@ -596,7 +636,7 @@ impl PspNet {
     fn heads(&self, images: Tensor<4>, noise_seed: Option<u64>) -> Heads {
         let [_, _, h, w] = images.dims();
         let ac = self.align_corners;
-        let stages = self.encoder.forward(images);
+        let EncoderFeatures { stem, stages } = self.encoder.forward(images);
         let mut x = match stages.last() {
             Some(last) => self.pyramid.forward(last.clone(), ac),
             None => unreachable_stages(),
@@ -606,6 +646,9 @@ impl PspNet {
         }
         if let Some(skip) = &self.skip {
             x = skip.forward(x, stages[0].clone(), ac);
+        }
+        if let Some(fine) = &self.fine_skip {
+            x = fine.forward(x, stem, ac);
         }
         let logits = resize(crate::layers::conv2d(&self.classifier, x), [h, w], ac);
         let aux = match (&self.aux, noise_seed) {
@@ -658,4 +701,37 @@ fn channel_dropout(x: Tensor<4>, p: f64, seed: u64) -> Tensor<4> {
         .collect();
     let mask = Tensor::<4>::from_data(TensorData::new(mask, [b, c, 1, 1]), &x.device());
     x * mask
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Width 1/8 (stem 8 channels), one block per stage, stride-4 refinement of 8 channels.
+    fn tiny() -> PspNetConfig {
+        PspNetConfig::new()
+            .with_width(0.125)
+            .with_blocks(vec![1, 1, 1, 1])
+            .with_psp_channels(16)
+            .with_skip_channels(8)
+    }
+
+    #[test]
+    fn the_fine_refinement_predicts_at_the_input_size_and_counts_its_convolutions() {
+        let device = Device::flex();
+        let coarse = tiny().init(&device).unwrap_or_else(|e| panic!("{e}"));
+        let fine = tiny()
+            .with_fine_skip_channels(4)
+            .init(&device)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(coarse.fine_skip.is_none());
+        let images = Tensor::<4>::zeros([2, 3, 32, 32], &device);
+        assert_eq!(fine.forward(images).dims(), [2, 5, 32, 32]);
+        // On 32×32: the stem gives 16×16, stage 1 8×8. The refinement projects the 8
+        // stride-4 channels (1×1 at 8×8) and the 8 stem channels (1×1 at 16×16) to 4 each,
+        // fuses them (3×3, 8 -> 4 at 16×16), and the classifier (to 5 classes) then runs on
+        // 4 channels at 16×16 instead of 8 at 8×8.
+        let added = 8 * 4 * 64 + 8 * 4 * 256 + 8 * 4 * 9 * 256 + 4 * 5 * 256 - 8 * 5 * 64;
+        assert_eq!(fine.macs(32, 32) - coarse.macs(32, 32), added);
+    }
 }

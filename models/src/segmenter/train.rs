@@ -38,7 +38,7 @@ use super::error::{Result, SegmenterError};
 use super::eval::{Prediction, class_names, evaluate};
 use super::files::{load_record, save_model, save_record, write_atomic};
 use super::infer::normalise;
-use super::loss::{LabelRef, LossTargets, segmentation_loss};
+use super::loss::{LabelRef, LossTargets, dice_loss, segmentation_loss};
 use super::metrics::MetricsSummary;
 use super::model::{PspNet, PspNetConfig};
 
@@ -95,6 +95,9 @@ pub struct TrainingConfig {
     /// Loss weight of each class [default: all 1].
     #[config(default = "None")]
     pub class_weights: Option<Vec<f32>>,
+    /// Weight of the soft Dice loss added to the cross-entropy (0: cross-entropy alone).
+    #[config(default = 0.0)]
+    pub dice_weight: f64,
     /// Weight of the auxiliary head's loss (with `model.aux_head`).
     #[config(default = 0.4)]
     pub aux_weight: f64,
@@ -120,6 +123,12 @@ impl TrainingConfig {
         let bad = |m: String| Err(SegmenterError::Config(m));
         if self.batch_size == 0 || self.accumulation == 0 || self.epochs == 0 {
             return bad("batch size, accumulation and epochs must be at least 1".into());
+        }
+        if !(self.dice_weight.is_finite() && self.dice_weight >= 0.0) {
+            return bad(format!(
+                "dice weight must be 0 or more, not {}",
+                self.dice_weight
+            ));
         }
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
             return bad(format!(
@@ -159,6 +168,12 @@ impl TrainingConfig {
         }
         self.learning_rate
     }
+}
+
+/// Reads a `train.json`, also one written before a setting existed (it gets the setting's
+/// default; [`super::files::load_config`]).
+pub fn load_training_config(path: &Path) -> std::result::Result<TrainingConfig, String> {
+    super::files::load_config(path, &TrainingConfig::new(PspNetConfig::new()))
 }
 
 /// Where a run stands after an epoch (`checkpoint/state.json`).
@@ -452,7 +467,8 @@ pub fn train(
 }
 
 /// The loss of one batch: `[B, 3, crop, crop]` images through the network, the merged
-/// cross-entropy of the main head plus `aux_weight` times the aux head's.
+/// cross-entropy of the main head, plus `dice_weight` times its Dice loss, plus `aux_weight`
+/// times the aux head's cross-entropy.
 fn batch_loss(
     model: &PspNet,
     config: &TrainingConfig,
@@ -474,7 +490,10 @@ fn batch_loss(
     let side = config.crop as usize;
     let targets = LossTargets::new(&labels, [side, side], class_weights, device);
     let heads = model.forward_train(input, derive_seed(config.seed, STAGE_DROPOUT, micro_step));
-    let loss = segmentation_loss(heads.logits, &targets);
+    let mut loss = segmentation_loss(heads.logits.clone(), &targets);
+    if config.dice_weight > 0.0 {
+        loss = loss + dice_loss(heads.logits, &targets).mul_scalar(config.dice_weight);
+    }
     match heads.aux {
         Some(aux) => loss + segmentation_loss(aux, &targets).mul_scalar(config.aux_weight),
         None => loss,
@@ -516,7 +535,7 @@ impl Run {
                     "has no training run to resume (no train.json)",
                 ));
             }
-            let before = TrainingConfig::load(&config_path).map_err(|e| {
+            let before = load_training_config(&config_path).map_err(|e| {
                 SegmenterError::invalid(&config_path, format!("not a training config: {e}"))
             })?;
             if !same_run(&before, config) {
@@ -645,7 +664,7 @@ pub fn trained_short_side(model_dir: &Path) -> Result<Option<u32>> {
     else {
         return Ok(None);
     };
-    let config = TrainingConfig::load(&path)
+    let config = load_training_config(&path)
         .map_err(|e| SegmenterError::invalid(&path, format!("not a training config: {e}")))?;
     Ok(Some(config.size))
 }

@@ -657,7 +657,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         speed_scale_mps,
         args.target_speed,
     )?;
-    let labels = LabelConfig::default();
+    let labels = ctx.config.logs.decisions.clone();
 
     // Behaviour cloning on the training logs' go and wait frames.
     let bc = if args.train_logs.is_empty() {

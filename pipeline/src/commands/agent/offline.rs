@@ -135,7 +135,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     )?;
 
     // The drivers' approaches as episodes.
-    let labels = LabelConfig::default();
+    let labels = ctx.config.logs.decisions.clone();
     let mut set = TransitionSet::new(views.spec(), Action::ALL.len());
     let mut frames: BTreeMap<String, u64> = BTreeMap::new();
     let mut approaches = 0;

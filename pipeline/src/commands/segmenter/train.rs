@@ -3,11 +3,12 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use burn::config::Config as _;
 use clap::{Args, ValueEnum};
 use models::segmenter::PspNetConfig;
 use models::segmenter::data::{SourceSpec, Split};
-use models::segmenter::train::{StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, train};
+use models::segmenter::train::{
+    StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, load_training_config, train,
+};
 
 use super::record::TrainRecorder;
 use super::{Context, open_sources, parse_source, segmenter_error, with_threads};
@@ -87,6 +88,10 @@ pub struct TrainArgs {
     #[arg(long, value_name = "W,W,...", value_delimiter = ',')]
     pub class_weights: Option<Vec<f32>>,
 
+    /// Weight of a soft Dice loss added to the cross-entropy [default: 0, cross-entropy alone].
+    #[arg(long, value_name = "W")]
+    pub dice_weight: Option<f64>,
+
     #[command(flatten)]
     pub arch: ArchArgs,
 
@@ -122,6 +127,10 @@ pub struct ArchArgs {
     #[arg(long, value_name = "N")]
     pub skip_channels: Option<usize>,
 
+    /// Channels of the stride-2 skip refinement, on the stem's output [default: 0, off].
+    #[arg(long, value_name = "N")]
+    pub fine_skip_channels: Option<usize>,
+
     /// Train with an auxiliary head on the second-to-last encoder stage.
     #[arg(long)]
     pub aux_head: bool,
@@ -140,6 +149,7 @@ impl ArchArgs {
         set(&mut m.depth, self.depth);
         set(&mut m.psp_channels, self.psp_channels);
         set(&mut m.skip_channels, self.skip_channels);
+        set(&mut m.fine_skip_channels, self.fine_skip_channels);
         m.dilated |= self.dilated;
         m.aux_head |= self.aux_head;
     }
@@ -160,7 +170,7 @@ impl TrainArgs {
             (None, false) => None,
         };
         let mut c = match &file {
-            Some(path) => TrainingConfig::load(path).map_err(|e| {
+            Some(path) => load_training_config(path).map_err(|e| {
                 CliError::file(
                     path,
                     format!("not a training config: {e}"),
@@ -181,6 +191,7 @@ impl TrainArgs {
         set(&mut c.warmup_steps, self.warmup_steps);
         set(&mut c.size, self.size);
         set(&mut c.crop, self.crop);
+        set(&mut c.dice_weight, self.dice_weight);
         if self.samples_per_epoch.is_some() {
             c.samples_per_epoch = self.samples_per_epoch;
         }
