@@ -31,10 +31,9 @@
 //! `warmup_steps` transitions before learning again, so it is deterministic but not
 //! identical to an uninterrupted run.
 
-use std::collections::HashMap;
 use std::path::Path;
 
-use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::module::Module;
 use burn::nn::loss::HuberLossConfig;
 use burn::optim::grad_clipping::GradientClippingConfig;
 use burn::optim::{GradientsParams, ModuleOptimizer};
@@ -43,6 +42,8 @@ use burn::tensor::{Device, Int, Tensor, TensorData};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use sim::seed::item_rng;
+
+use crate::averaging::blend;
 use sim::{Env, Observation, ObservationSpec, Outcome};
 
 use crate::error::ModelError;
@@ -888,7 +889,7 @@ impl<'a> Learner<'a> {
 
     /// Blends the online network into the target network: `τ·online + (1 − τ)·target`.
     pub fn blend_target(&mut self, tau: f64) {
-        self.target = soft_update(self.target.clone(), &self.online.valid(), tau);
+        self.target = blend(self.target.clone(), &self.online.valid(), tau);
     }
 
     /// The counters and curves (offline training keeps its own in them).
@@ -954,39 +955,6 @@ impl LossWindow {
             record
         })
     }
-}
-
-/// `target ← τ·online + (1 − τ)·target`, parameter by parameter (matched by id: the target
-/// started as a copy of the online network).
-fn soft_update(target: QNetwork, online: &QNetwork, tau: f64) -> QNetwork {
-    struct Collect(HashMap<ParamId, Tensor<1>>);
-    impl ModuleVisitor for Collect {
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            self.0.insert(param.id, param.val().flatten::<1>(0, D - 1));
-        }
-    }
-    struct Blend {
-        online: HashMap<ParamId, Tensor<1>>,
-        tau: f64,
-    }
-    impl ModuleMapper for Blend {
-        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-            let Some(online) = self.online.remove(&param.id) else {
-                return param;
-            };
-            let tau = self.tau;
-            param.map(|t| {
-                let shape = t.shape();
-                t.mul_scalar(1.0 - tau) + online.reshape(shape).mul_scalar(tau)
-            })
-        }
-    }
-    let mut collect = Collect(HashMap::new());
-    online.visit(&mut collect);
-    target.map(&mut Blend {
-        online: collect.0,
-        tau,
-    })
 }
 
 /// Everything a run needs to go on: both networks, Adam's state, the counters and curves,

@@ -23,6 +23,7 @@
 //! type whatever the backend, so the networks need no backend type parameter).
 
 pub mod allocator;
+pub mod averaging;
 pub mod bc;
 pub mod camera_view;
 pub mod dqn;

@@ -64,6 +64,17 @@ fn curves(run: &Path) -> Vec<CurvePoint> {
         .collect()
 }
 
+/// The validation mIoU of each epoch of a run, in order.
+fn val_mious(run: &Path) -> Vec<f64> {
+    curves(run)
+        .iter()
+        .filter_map(|p| match p {
+            CurvePoint::Epoch(e) => Some(e.val.miou),
+            CurvePoint::Step(_) => None,
+        })
+        .collect()
+}
+
 #[test]
 fn tiny_network_overfits_four_images() {
     let root = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
@@ -168,17 +179,45 @@ fn same_seed_same_model_whatever_the_threads_and_resume_continues_exactly() {
             .collect()
     };
     assert_eq!(steps(&resumed), vec![1, 2, 3, 4]);
-    let losses = |dir: &Path| -> Vec<f64> {
-        curves(dir)
-            .iter()
-            .filter_map(|p| match p {
-                CurvePoint::Epoch(e) => Some(e.val.miou),
-                CurvePoint::Step(_) => None,
-            })
-            .collect()
-    };
-    assert_eq!(losses(&one), losses(&resumed));
+    assert_eq!(val_mious(&one), val_mious(&resumed));
     // A fresh run into a used folder is refused.
     let again = train(&one, &tiny_config(4), &data, false, &device, &mut Quiet);
     assert!(again.is_err());
+}
+
+#[test]
+fn the_weight_average_is_validated_saved_and_resumed_exactly() {
+    let root = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let dataset = write_dataset(&root.path().join("data"));
+    let data = data(&dataset);
+    let run = |name: &str, epochs: usize, ema_decay: f64, resume: bool| {
+        let dir = root.path().join(name);
+        let config = tiny_config(epochs).with_ema_decay(ema_decay);
+        train(&dir, &config, &data, resume, &Device::flex(), &mut Quiet)
+            .unwrap_or_else(|e| panic!("{e}"));
+        dir
+    };
+    let read =
+        |dir: &Path, file: &str| std::fs::read(dir.join(file)).unwrap_or_else(|e| panic!("{e}"));
+    let plain = run("plain", 4, 0.0, false);
+    let averaged = run("averaged", 4, 0.5, false);
+    assert!(!plain.join("checkpoint/ema.bpk").exists());
+    // The trained weights take the same steps; the average is another network, and it is
+    // the one validated.
+    assert_eq!(
+        read(&plain, "checkpoint/model.bpk"),
+        read(&averaged, "checkpoint/model.bpk")
+    );
+    assert_ne!(
+        read(&averaged, "checkpoint/ema.bpk"),
+        read(&averaged, "checkpoint/model.bpk")
+    );
+    assert_ne!(val_mious(&plain), val_mious(&averaged));
+    // 2 epochs, then resumed for 4: the same average and the same best model.
+    run("resumed", 2, 0.5, false);
+    let resumed = run("resumed", 4, 0.5, true);
+    for file in ["checkpoint/ema.bpk", "best/model.safetensors"] {
+        assert_eq!(read(&averaged, file), read(&resumed, file), "{file}");
+    }
+    assert_eq!(val_mious(&averaged), val_mious(&resumed));
 }

@@ -190,6 +190,12 @@ pub struct Augment {
     pub scale: [f32; 2],
     /// Flip half of the items left-right.
     pub flip: bool,
+    /// Share of the crops placed around a pixel of one class, chosen uniformly among the
+    /// classes the item holds, instead of anywhere: small rare objects (people far away)
+    /// are otherwise often cut off by a crop smaller than the image. 0 keeps every crop
+    /// uniform (and the random draws exactly as without the option).
+    #[serde(default)]
+    pub balanced_crops: f32,
 }
 
 impl Augment {
@@ -203,8 +209,15 @@ impl Augment {
         };
         let resized = resize_sample(sample, ((self.size as f32 * scale).round() as u32).max(1));
         let (w, h) = resized.image.dimensions();
-        let x0 = rng.random_range(0..=w.saturating_sub(self.crop));
-        let y0 = rng.random_range(0..=h.saturating_sub(self.crop));
+        let centred = self.balanced_crops > 0.0 && rng.random::<f32>() < self.balanced_crops;
+        let (x0, y0) = match centred {
+            true => class_centred_origin(&resized.label, self.crop, &mut rng),
+            false => None,
+        }
+        .unwrap_or_else(|| {
+            let x0 = rng.random_range(0..=w.saturating_sub(self.crop));
+            (x0, rng.random_range(0..=h.saturating_sub(self.crop)))
+        });
         let side = self.crop;
         let inside = |x: u32, y: u32| x0 + x < w && y0 + y < h;
         let mut image = RgbImage::from_fn(side, side, |x, y| {
@@ -231,6 +244,39 @@ impl Augment {
             label,
         })
     }
+}
+
+/// The top-left corner of a `crop`-pixel square holding one pixel of a class drawn
+/// uniformly among the classes `label` holds (then a pixel of it uniformly, then the
+/// square's place around it uniformly); `None` when the label holds no class at all.
+fn class_centred_origin(label: &GrayImage, crop: u32, rng: &mut impl Rng) -> Option<(u32, u32)> {
+    let mut counts = [0usize; NUM_CLASSES];
+    for p in label.pixels() {
+        if let Some(n) = counts.get_mut(p[0] as usize) {
+            *n += 1;
+        }
+    }
+    let present: Vec<usize> = (0..NUM_CLASSES).filter(|&c| counts[c] > 0).collect();
+    let class = *present.get(rng.random_range(0..present.len().max(1)))?;
+    let nth = rng.random_range(0..counts[class]);
+    let index = label
+        .pixels()
+        .enumerate()
+        .filter(|(_, p)| p[0] as usize == class)
+        .nth(nth)?
+        .0 as u32;
+    let (w, h) = label.dimensions();
+    let x0 = origin_around(index % w, w, crop, rng);
+    let y0 = origin_around(index / w, h, crop, rng);
+    Some((x0, y0))
+}
+
+/// A uniform origin, along a side of `length` pixels, of a `crop`-pixel span that holds
+/// pixel `at` and stays inside (0 when the side is shorter than the crop).
+fn origin_around(at: u32, length: u32, crop: u32, rng: &mut impl Rng) -> u32 {
+    let low = (at + 1).saturating_sub(crop);
+    let high = at.min(length.saturating_sub(crop));
+    rng.random_range(low.min(high)..=high)
 }
 
 /// Resizes so the short side is `short` (bilinear image, nearest-neighbour label).
@@ -340,6 +386,7 @@ mod tests {
             crop: 28,
             scale: [0.75, 1.5],
             flip: true,
+            balanced_crops: 0.0,
         };
         let s = sample(64, 48);
         for draw in 0..20 {
@@ -358,5 +405,68 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn balanced_crops_hold_a_rare_class_as_often_as_a_common_one() {
+        // A 200 × 200 label of class 4 with one 2 × 2 blob of class 3 in a corner: uniform
+        // 50-px crops almost never hold it (0.1 % of origins), crops balanced over the two
+        // classes hold it in about half of the draws.
+        let label = GrayImage::from_fn(200, 200, |x, y| {
+            Luma([if (190..192).contains(&x) && y < 2 {
+                3
+            } else {
+                4
+            }])
+        });
+        let s = Sample {
+            id: "blob".into(),
+            image: RgbImage::new(200, 200),
+            label,
+        };
+        let holds_blob = |balanced_crops: f32| {
+            let aug = Augment {
+                size: 200,
+                crop: 50,
+                scale: [1.0, 1.0],
+                flip: false,
+                balanced_crops,
+            };
+            (0..400)
+                .filter(|&draw| {
+                    let a = aug.apply(&s, 7, 0, draw).unwrap_or_else(|e| panic!("{e}"));
+                    assert_eq!(a.label.dimensions(), (50, 50));
+                    assert!(
+                        !a.label.pixels().any(|p| p[0] == IGNORE),
+                        "a crop left the image"
+                    );
+                    a.label.pixels().any(|p| p[0] == 3)
+                })
+                .count()
+        };
+        let uniform = holds_blob(0.0);
+        let balanced = holds_blob(1.0);
+        assert!(
+            uniform < 40,
+            "uniform crops held the blob {uniform} times of 400"
+        );
+        assert!(
+            (160..=240).contains(&balanced),
+            "balanced crops held it {balanced} times of 400"
+        );
+        // A label without any class (all ignored) falls back to a uniform crop.
+        let blank = Sample {
+            id: "blank".into(),
+            image: RgbImage::new(60, 60),
+            label: GrayImage::from_pixel(60, 60, Luma([IGNORE])),
+        };
+        let aug = Augment {
+            size: 60,
+            crop: 50,
+            scale: [1.0, 1.0],
+            flip: false,
+            balanced_crops: 1.0,
+        };
+        assert!(aug.apply(&blank, 7, 0, 0).is_ok());
     }
 }

@@ -8,7 +8,8 @@
 //! <run>/
 //!   train.json        the TrainingConfig (a resumed run must have the same)
 //!   curves.jsonl      one line per optimiser step and per epoch (CurvePoint)
-//!   checkpoint/       the last epoch: model.bpk, optimizer.bpk, state.json
+//!   checkpoint/       the last epoch: model.bpk, optimizer.bpk, state.json, and with
+//!                     `ema_decay` the averaged weights, ema.bpk
 //!   best/             the model of the best validation mIoU: a model folder (see files)
 //!                     plus metrics.json
 //! ```
@@ -33,6 +34,8 @@ use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 use sim::seed::derive_seed;
 
+use crate::averaging::blend;
+
 use super::data::{Augment, Sample, Source, check_sources, epoch_draws, load_batch, resize_sample};
 use super::error::{Result, SegmenterError};
 use super::eval::{Prediction, class_names, evaluate};
@@ -48,6 +51,7 @@ pub const CHECKPOINT_DIR: &str = "checkpoint";
 pub const BEST_DIR: &str = "best";
 pub const STATE_FILE: &str = "state.json";
 pub const OPTIMIZER_FILE: &str = "optimizer.bpk";
+pub const EMA_FILE: &str = "ema.bpk";
 pub const METRICS_FILE: &str = "metrics.json";
 
 /// The short side images are trained at unless a run says otherwise; also what a model
@@ -92,12 +96,22 @@ pub struct TrainingConfig {
     pub scale: [f32; 2],
     #[config(default = true)]
     pub flip: bool,
+    /// Share of the training crops placed around a pixel of a class drawn uniformly among
+    /// those the image holds (`Augment::balanced_crops`); 0 places every crop uniformly.
+    #[config(default = 0.0)]
+    pub balanced_crops: f32,
     /// Loss weight of each class [default: all 1].
     #[config(default = "None")]
     pub class_weights: Option<Vec<f32>>,
     /// Weight of the soft Dice loss added to the cross-entropy (0: cross-entropy alone).
     #[config(default = 0.0)]
     pub dice_weight: f64,
+    /// Decay of an exponential moving average of the weights, which is then what is
+    /// validated and saved as the best model (0: off, the trained weights themselves).
+    /// Early steps use `min(decay, (1 + n) / (10 + n))` after `n` steps, so the average
+    /// does not hold on to the random initial weights.
+    #[config(default = 0.0)]
+    pub ema_decay: f64,
     /// Weight of the auxiliary head's loss (with `model.aux_head`).
     #[config(default = 0.4)]
     pub aux_weight: f64,
@@ -123,6 +137,18 @@ impl TrainingConfig {
         let bad = |m: String| Err(SegmenterError::Config(m));
         if self.batch_size == 0 || self.accumulation == 0 || self.epochs == 0 {
             return bad("batch size, accumulation and epochs must be at least 1".into());
+        }
+        if !(0.0..=1.0).contains(&self.balanced_crops) {
+            return bad(format!(
+                "balanced crops is a share from 0 to 1, not {}",
+                self.balanced_crops
+            ));
+        }
+        if !(0.0..1.0).contains(&self.ema_decay) {
+            return bad(format!(
+                "EMA decay must be from 0 (off) up to but not including 1, not {}",
+                self.ema_decay
+            ));
         }
         if !(self.dice_weight.is_finite() && self.dice_weight >= 0.0) {
             return bad(format!(
@@ -289,8 +315,10 @@ pub fn train(
         stopped: None,
     };
     let mut resumed_from_epoch = None;
+    let mut average = WeightAverage::new(config.ema_decay, &model);
     if let Some(checkpoint) = run.checkpoint()? {
         model = load_record(&checkpoint.join(super::files::MODEL_RECORD_FILE), model)?;
+        average.load(&checkpoint.join(EMA_FILE), &model)?;
         let optimizer_path = checkpoint.join(OPTIMIZER_FILE);
         optimizer = optimizer.load(&optimizer_path).map_err(|e| {
             SegmenterError::invalid(
@@ -323,6 +351,7 @@ pub fn train(
         crop: config.crop,
         scale: config.scale,
         flip: config.flip,
+        balanced_crops: config.balanced_crops,
     };
     let session_start = Instant::now();
     let seconds_before = state.seconds;
@@ -374,6 +403,7 @@ pub fn train(
                 let lr = config.learning_rate_at(state.step, total_steps);
                 model = optimizer.step(lr, model, accumulator.grads());
                 state.step += 1;
+                average.update(&model, state.step);
                 let point = StepPoint {
                     step: state.step,
                     epoch: epoch + 1,
@@ -392,9 +422,10 @@ pub fn train(
             let lr = config.learning_rate_at(state.step, total_steps);
             model = optimizer.step(lr, model, accumulator.grads());
             state.step += 1;
+            average.update(&model, state.step);
         }
 
-        let valid = model.valid();
+        let valid = average.weights(&model);
         let previews_wanted = config.preview_images;
         let mut previews = Vec::new();
         let evaluation = evaluate(
@@ -457,13 +488,53 @@ pub fn train(
             run.save_best(&valid, &config.model, &point)?;
         }
         run.append(&CurvePoint::Epoch(point.clone()))?;
-        run.save_checkpoint(&model, &optimizer, &state)?;
+        run.save_checkpoint(&model, &optimizer, average.averaged.as_ref(), &state)?;
         observer.epoch(&point, &previews);
         if state.stopped.is_some() {
             break;
         }
     }
     Ok(run.summary(state, resumed_from_epoch))
+}
+
+/// The exponential moving average of the weights a run keeps with `ema_decay` (inference
+/// mode: it never takes gradients), or nothing.
+struct WeightAverage {
+    decay: f64,
+    averaged: Option<PspNet>,
+}
+
+impl WeightAverage {
+    /// Starts from the model's weights, when averaging is on.
+    fn new(decay: f64, model: &PspNet) -> Self {
+        WeightAverage {
+            decay,
+            averaged: (decay > 0.0).then(|| model.valid()),
+        }
+    }
+
+    /// Takes the average saved with a checkpoint; a checkpoint without one (a run before
+    /// averaging existed cannot be resumed with it: `same_run`) is an error.
+    fn load(&mut self, path: &Path, model: &PspNet) -> Result<()> {
+        if self.averaged.is_some() {
+            self.averaged = Some(load_record(path, model.valid())?);
+        }
+        Ok(())
+    }
+
+    /// Moves the average towards the model after its `steps_done`-th step.
+    fn update(&mut self, model: &PspNet, steps_done: u64) {
+        if let Some(averaged) = self.averaged.take() {
+            let n = steps_done as f64;
+            let decay = self.decay.min((1.0 + n) / (10.0 + n));
+            self.averaged = Some(blend(averaged, &model.valid(), 1.0 - decay));
+        }
+    }
+
+    /// What is validated and kept as the best model: the average, or the model itself.
+    fn weights(&self, model: &PspNet) -> PspNet {
+        self.averaged.clone().unwrap_or_else(|| model.valid())
+    }
 }
 
 /// The loss of one batch: `[B, 3, crop, crop]` images through the network, the merged
@@ -619,10 +690,14 @@ impl Run {
         &self,
         model: &PspNet,
         optimizer: &ModuleOptimizer,
+        averaged: Option<&PspNet>,
         state: &TrainState,
     ) -> Result<()> {
         replace_dir(&self.path(CHECKPOINT_DIR), |dir| {
             save_record(&dir.join(super::files::MODEL_RECORD_FILE), model)?;
+            if let Some(averaged) = averaged {
+                save_record(&dir.join(EMA_FILE), averaged)?;
+            }
             let opt_path = dir.join(OPTIMIZER_FILE);
             optimizer.save(&opt_path).map_err(|e| {
                 SegmenterError::invalid(&opt_path, format!("cannot write the optimizer state: {e}"))

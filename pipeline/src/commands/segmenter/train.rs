@@ -92,6 +92,16 @@ pub struct TrainArgs {
     #[arg(long, value_name = "W")]
     pub dice_weight: Option<f64>,
 
+    /// Share of the crops placed around a pixel of a class drawn uniformly among those the
+    /// image holds, so rare small objects are cropped in more often [default: 0, uniform].
+    #[arg(long, value_name = "SHARE")]
+    pub balanced_crops: Option<f32>,
+
+    /// Validate and keep an exponential moving average of the weights with this decay
+    /// (0.999 is usual) [default: 0, the trained weights themselves].
+    #[arg(long, value_name = "DECAY")]
+    pub ema_decay: Option<f64>,
+
     #[command(flatten)]
     pub arch: ArchArgs,
 
@@ -192,6 +202,8 @@ impl TrainArgs {
         set(&mut c.size, self.size);
         set(&mut c.crop, self.crop);
         set(&mut c.dice_weight, self.dice_weight);
+        set(&mut c.balanced_crops, self.balanced_crops);
+        set(&mut c.ema_decay, self.ema_decay);
         if self.samples_per_epoch.is_some() {
             c.samples_per_epoch = self.samples_per_epoch;
         }
