@@ -29,6 +29,11 @@ pub enum Layer {
     Obstacles,
     /// Stop and yield lines.
     StopLines,
+    /// Every vehicle's footprint, as bright as it is fast: 255 at
+    /// [`BevConfig::full_speed_mps`] or faster, 0 standing. A car creeping round a ring
+    /// moves under a pixel between two frames; here it differs from one stopped at its line
+    /// in every single frame.
+    ObstacleSpeed,
 }
 
 impl Layer {
@@ -38,6 +43,7 @@ impl Layer {
             Layer::Path => "path",
             Layer::Obstacles => "obstacles",
             Layer::StopLines => "stop_lines",
+            Layer::ObstacleSpeed => "obstacle_speed",
         }
     }
 }
@@ -62,6 +68,8 @@ pub struct BevConfig {
     pub path_width_m: f64,
     /// Width of drawn stop lines, m (about one output pixel keeps them visible).
     pub line_width_m: f64,
+    /// The speed drawn at full brightness in [`Layer::ObstacleSpeed`], m/s.
+    pub full_speed_mps: f64,
 }
 
 impl Default for BevConfig {
@@ -81,6 +89,7 @@ impl Default for BevConfig {
             map_resolution_m: 0.2,
             path_width_m: 2.0,
             line_width_m: 0.8,
+            full_speed_mps: 15.0,
         }
     }
 }
@@ -116,21 +125,27 @@ impl BevConfig {
             && self.width * self.height <= 1 << 22
             && self.stack > 0
             && !self.layers.is_empty()
-            && [self.forward_m, self.lateral_m, self.map_resolution_m]
-                .iter()
-                .all(|v| v.is_finite() && *v > 0.0);
+            && [
+                self.forward_m,
+                self.lateral_m,
+                self.map_resolution_m,
+                self.full_speed_mps,
+            ]
+            .iter()
+            .all(|v| v.is_finite() && *v > 0.0);
         if ok {
             Ok(())
         } else {
             Err(crate::SimError::Config(format!(
-                "bird's-eye view {}×{} px over {}×{} m, {} layers, stack {}, map raster {} m: sizes must be positive",
+                "bird's-eye view {}×{} px over {}×{} m, {} layers, stack {}, map raster {} m, full speed {} m/s: sizes must be positive",
                 self.width,
                 self.height,
                 self.forward_m,
                 self.lateral_m,
                 self.layers.len(),
                 self.stack,
-                self.map_resolution_m
+                self.map_resolution_m,
+                self.full_speed_mps
             )))
         }
     }
@@ -364,13 +379,19 @@ impl BevRenderer {
                 255,
             );
         }
-        if let Some(k) = slot(Layer::Obstacles) {
-            let buf = &mut out[k * plane..(k + 1) * plane];
-            for actor in &scene.actors {
-                let corners = actor.footprint().corners().map(|p| frame.pixel(p));
-                fill_convex(buf, w, h, &corners, 255);
+        let mut draw_actors = |layer: Layer, value: &dyn Fn(&Actor) -> u8| {
+            if let Some(k) = slot(layer) {
+                let buf = &mut out[k * plane..(k + 1) * plane];
+                for actor in &scene.actors {
+                    let corners = actor.footprint().corners().map(|p| frame.pixel(p));
+                    fill_convex(buf, w, h, &corners, value(actor));
+                }
             }
-        }
+        };
+        draw_actors(Layer::Obstacles, &|_| 255);
+        draw_actors(Layer::ObstacleSpeed, &|actor| {
+            speed_brightness(actor.speed_mps, cfg.full_speed_mps)
+        });
     }
 
     /// Nearest-neighbour samples of the map raster for the navigable and stop line layers.
@@ -414,6 +435,16 @@ impl BevRenderer {
             }
         }
     }
+}
+
+/// The brightness of a vehicle moving at `speed_mps` in [`Layer::ObstacleSpeed`]: linear
+/// from 0 standing (or reversing) to 255 at `full_speed_mps` and above.
+fn speed_brightness(speed_mps: f64, full_speed_mps: f64) -> u8 {
+    let share = speed_mps / full_speed_mps;
+    if share.is_nan() {
+        return 0;
+    }
+    (share.clamp(0.0, 1.0) * 255.0).round() as u8
 }
 
 /// Fills a convex polygon (continuous pixel coordinates, x right, y down) into a
@@ -668,6 +699,55 @@ mod tests {
             spaced.write(&mut b);
             assert_eq!(a, b);
         }
+    }
+
+    /// The speed layer draws the same footprints as the obstacle layer, each as bright as
+    /// its vehicle is fast, so a stopped car is in one layer and not the other.
+    #[test]
+    fn speed_layer_shades_each_footprint_by_its_speed() {
+        let map = crate::test_maps::straight_road(Point::new(-100.0, 0.0), Point::new(100.0, 0.0));
+        let mut region = Bounds::empty();
+        region.extend(Point::new(-30.0, -30.0));
+        region.extend(Point::new(30.0, 30.0));
+        let config = BevConfig {
+            layers: vec![Layer::Obstacles, Layer::ObstacleSpeed],
+            ..BevConfig::default()
+        };
+        let renderer = BevRenderer::new(&map, region, config).expect("renderer");
+        let car = |id: u32, x: f64, speed_mps: f64| Actor {
+            id,
+            kind: ActorKind::Car,
+            position: Point::new(x, 0.0),
+            heading_rad: 0.0,
+            speed_mps,
+            length_m: 4.0,
+            width_m: 2.0,
+            lane: None,
+            aggressiveness: None,
+        };
+        let path = [Point::new(0.0, 0.0), Point::new(20.0, 0.0)];
+        // The ego standing, a car 10 m ahead at half the full speed, one 20 m ahead at twice it.
+        let scene = Scene {
+            map: &map,
+            time_s: 0.0,
+            actors: vec![car(0, 0.0, 0.0), car(1, 10.0, 7.5), car(2, 20.0, 30.0)],
+            ego: 0,
+            ego_path: &path,
+        };
+        let mut out = Vec::new();
+        renderer.render(&scene, &mut out);
+        let plane = 84 * 84;
+        let at = |layer: usize, metres_ahead: f64| {
+            let row = (42.0 - metres_ahead * 84.0 / 50.0).floor() as usize;
+            out[layer * plane + row * 84 + 42]
+        };
+        assert_eq!((at(0, 0.0), at(1, 0.0)), (255, 0));
+        assert_eq!((at(0, 10.0), at(1, 10.0)), (255, 128));
+        assert_eq!((at(0, 20.0), at(1, 20.0)), (255, 255));
+        // Between the cars both layers are empty.
+        assert_eq!((at(0, 15.0), at(1, 15.0)), (0, 0));
+        assert_eq!(speed_brightness(-2.0, 15.0), 0);
+        assert_eq!(speed_brightness(f64::NAN, 15.0), 0);
     }
 
     /// A straight east-going lane: ahead of a north-facing ego it shows on the right.
