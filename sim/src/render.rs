@@ -701,30 +701,41 @@ mod tests {
         }
     }
 
-    /// The speed layer draws the same footprints as the obstacle layer, each as bright as
-    /// its vehicle is fast, so a stopped car is in one layer and not the other.
-    #[test]
-    fn speed_layer_shades_each_footprint_by_its_speed() {
+    /// A straight road along the x axis and the region around the origin the renderers cover.
+    fn straight_road_with_region() -> (Map, Bounds) {
         let map = crate::test_maps::straight_road(Point::new(-100.0, 0.0), Point::new(100.0, 0.0));
         let mut region = Bounds::empty();
         region.extend(Point::new(-30.0, -30.0));
         region.extend(Point::new(30.0, 30.0));
-        let config = BevConfig {
-            layers: vec![Layer::Obstacles, Layer::ObstacleSpeed],
-            ..BevConfig::default()
-        };
-        let renderer = BevRenderer::new(&map, region, config).expect("renderer");
-        let car = |id: u32, x: f64, speed_mps: f64| Actor {
+        (map, region)
+    }
+
+    /// A 4 × 2 m car.
+    fn car(id: u32, position: Point, heading_rad: f64, speed_mps: f64) -> Actor {
+        Actor {
             id,
             kind: ActorKind::Car,
-            position: Point::new(x, 0.0),
-            heading_rad: 0.0,
+            position,
+            heading_rad,
             speed_mps,
             length_m: 4.0,
             width_m: 2.0,
             lane: None,
             aggressiveness: None,
+        }
+    }
+
+    /// The speed layer draws the same footprints as the obstacle layer, each as bright as
+    /// its vehicle is fast, so a stopped car is in one layer and not the other.
+    #[test]
+    fn speed_layer_shades_each_footprint_by_its_speed() {
+        let (map, region) = straight_road_with_region();
+        let config = BevConfig {
+            layers: vec![Layer::Obstacles, Layer::ObstacleSpeed],
+            ..BevConfig::default()
         };
+        let renderer = BevRenderer::new(&map, region, config).expect("renderer");
+        let car = |id: u32, x: f64, speed_mps: f64| car(id, Point::new(x, 0.0), 0.0, speed_mps);
         let path = [Point::new(0.0, 0.0), Point::new(20.0, 0.0)];
         // The ego standing, a car 10 m ahead at half the full speed, one 20 m ahead at twice it.
         let scene = Scene {
@@ -753,23 +764,10 @@ mod tests {
     /// A straight east-going lane: ahead of a north-facing ego it shows on the right.
     #[test]
     fn ego_aligned_orientation() {
-        let map = crate::test_maps::straight_road(Point::new(-100.0, 0.0), Point::new(100.0, 0.0));
-        let mut region = Bounds::empty();
-        region.extend(Point::new(-30.0, -30.0));
-        region.extend(Point::new(30.0, 30.0));
+        let (map, region) = straight_road_with_region();
         let config = BevConfig::default();
         let renderer = BevRenderer::new(&map, region, config.clone()).expect("renderer");
-        let actor = |x: f64, y: f64, heading: f64| Actor {
-            id: 0,
-            kind: ActorKind::Car,
-            position: Point::new(x, y),
-            heading_rad: heading,
-            speed_mps: 0.0,
-            length_m: 4.0,
-            width_m: 2.0,
-            lane: None,
-            aggressiveness: None,
-        };
+        let actor = |x: f64, y: f64, heading: f64| car(0, Point::new(x, y), heading, 0.0);
         let path = [Point::new(0.0, 0.0), Point::new(20.0, 0.0)];
         // Ego facing east at the origin; another car 10 m ahead of it.
         let scene = Scene {
