@@ -127,4 +127,27 @@ mod tests {
         assert_eq!(Config::parse(""), Ok(Config::default()));
         Ok(())
     }
+
+    /// The files of `docs/configs` are how the docs' results are rerun: a renamed key or a
+    /// removed option must fail here, not months later in someone's hour-long training run.
+    #[test]
+    fn every_documented_config_file_reads_and_its_dqn_settings_validate() -> Result<(), String> {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/configs");
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .map_err(|e| format!("{}: {e}", dir.display()))?
+            .filter_map(|entry| entry.ok().map(|e| e.path()))
+            .filter(|path| path.extension().is_some_and(|ext| ext == "toml"))
+            .collect();
+        files.sort();
+        assert!(!files.is_empty(), "no config files in {}", dir.display());
+        for file in &files {
+            let config = Config::load(Some(file)).map_err(|e| format!("{e:#}"))?;
+            config
+                .agent
+                .dqn
+                .validate()
+                .map_err(|e| format!("{}: [agent.dqn]: {e}", file.display()))?;
+        }
+        Ok(())
+    }
 }
