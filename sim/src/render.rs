@@ -379,19 +379,20 @@ impl BevRenderer {
                 255,
             );
         }
-        let mut draw_actors = |layer: Layer, value: &dyn Fn(&Actor) -> u8| {
-            if let Some(k) = slot(layer) {
-                let buf = &mut out[k * plane..(k + 1) * plane];
-                for actor in &scene.actors {
-                    let corners = actor.footprint().corners().map(|p| frame.pixel(p));
-                    fill_convex(buf, w, h, &corners, value(actor));
+        let obstacles = slot(Layer::Obstacles);
+        let speeds = slot(Layer::ObstacleSpeed);
+        if obstacles.is_some() || speeds.is_some() {
+            for actor in &scene.actors {
+                let corners = actor.footprint().corners().map(|p| frame.pixel(p));
+                if let Some(k) = obstacles {
+                    fill_convex(&mut out[k * plane..(k + 1) * plane], w, h, &corners, 255);
+                }
+                if let Some(k) = speeds {
+                    let value = speed_brightness(actor.speed_mps, cfg.full_speed_mps);
+                    fill_convex(&mut out[k * plane..(k + 1) * plane], w, h, &corners, value);
                 }
             }
-        };
-        draw_actors(Layer::Obstacles, &|_| 255);
-        draw_actors(Layer::ObstacleSpeed, &|actor| {
-            speed_brightness(actor.speed_mps, cfg.full_speed_mps)
-        });
+        }
     }
 
     /// Nearest-neighbour samples of the map raster for the navigable and stop line layers.
@@ -438,13 +439,10 @@ impl BevRenderer {
 }
 
 /// The brightness of a vehicle moving at `speed_mps` in [`Layer::ObstacleSpeed`]: linear
-/// from 0 standing (or reversing) to 255 at `full_speed_mps` and above.
+/// from 0 standing (or reversing) to 255 at `full_speed_mps` and above. A NaN speed draws
+/// 0: the float-to-integer cast maps NaN to 0.
 fn speed_brightness(speed_mps: f64, full_speed_mps: f64) -> u8 {
-    let share = speed_mps / full_speed_mps;
-    if share.is_nan() {
-        return 0;
-    }
-    (share.clamp(0.0, 1.0) * 255.0).round() as u8
+    ((speed_mps / full_speed_mps).clamp(0.0, 1.0) * 255.0).round() as u8
 }
 
 /// Fills a convex polygon (continuous pixel coordinates, x right, y down) into a
