@@ -8,7 +8,10 @@
 //! frames) and 6 scalars, 3 actions; the batch is random and rebuilt outside the timing.
 //!
 //! Usage: `bench_qnet_step [--network default|its] [--batch 32] [--steps 60] [--warmup 5]
-//! [--device cpu|libtorch]`; prints one JSON object. `libtorch` needs a build with
+//! [--device cpu|libtorch] [--size 84] [--channels 16] [--convs C:K:S:P,...]`; prints one JSON
+//! object. `--size` and `--channels` set the input (`[batch, channels, size, size]`), `--convs`
+//! replaces the preset's convolutions (channels:kernel:stride:padding each), to time a network
+//! before an hour of training on it. `libtorch` needs a build with
 //! `--features libtorch` (docs/gpu.md); its threads are capped at `RAYON_NUM_THREADS` too.
 
 #![allow(clippy::print_stdout, clippy::print_stderr)]
@@ -21,7 +24,7 @@ use std::time::Instant;
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use models::dqn::{AgentShape, DqnConfig, Learner};
-use models::qnet::QNetworkConfig;
+use models::qnet::{ConvSpec, QNetworkConfig};
 use models::replay::Batch;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -59,6 +62,27 @@ fn random_batch(rng: &mut ChaCha8Rng, shape: &AgentShape, size: usize) -> Batch 
     }
 }
 
+/// `channels:kernel:stride:padding[,...]` as convolution specs.
+fn parse_convolutions(text: &str) -> Option<Vec<ConvSpec>> {
+    text.split(',')
+        .map(|spec| {
+            let v: Vec<usize> = spec
+                .split(':')
+                .map(|x| x.parse().ok())
+                .collect::<Option<_>>()?;
+            match v[..] {
+                [channels, kernel, stride, padding] => Some(ConvSpec {
+                    channels,
+                    kernel,
+                    stride,
+                    padding,
+                }),
+                _ => None,
+            }
+        })
+        .collect()
+}
+
 fn main() {
     models::allocator::keep_freed_memory();
     let args: Vec<String> = std::env::args().collect();
@@ -84,10 +108,21 @@ fn main() {
     };
     let threads = rayon::current_num_threads();
     models::set_network_threads(threads);
-    let Some(network_config) = QNetworkConfig::preset(&network) else {
+    let Some(mut network_config) = QNetworkConfig::preset(&network) else {
         eprintln!("unknown --network {network} (default or its)");
         std::process::exit(2);
     };
+    let convs: String = arg(&args, "--convs", String::new());
+    if !convs.is_empty() {
+        match parse_convolutions(&convs) {
+            Some(c) => network_config.convolutions = c,
+            None => {
+                eprintln!("--convs {convs}: expected channels:kernel:stride:padding[,...]");
+                std::process::exit(2);
+            }
+        }
+    }
+    let size: usize = arg(&args, "--size", 84);
     let config = DqnConfig {
         network: network_config,
         batch_size,
@@ -96,9 +131,9 @@ fn main() {
         ..DqnConfig::default()
     };
     let shape = AgentShape {
-        channels: 16,
-        height: 84,
-        width: 84,
+        channels: arg(&args, "--channels", 16),
+        height: size,
+        width: size,
         scalars: 6,
         actions: 3,
     };
@@ -131,7 +166,8 @@ fn main() {
     };
     println!(
         "{{\"framework\": \"{framework}\", \"network\": \"{network}\", \"batch\": {batch_size}, \"threads\": {threads}, \
-         \"steps\": {steps}, \"median_ms\": {median:.3}, \"times_ms\": {times_ms:?}, \"last_loss\": {:.6}}}",
+         \"input\": [{}, {size}, {size}], \"steps\": {steps}, \"median_ms\": {median:.3}, \"times_ms\": {times_ms:?}, \"last_loss\": {:.6}}}",
+        shape.channels,
         losses.last().copied().unwrap_or(f64::NAN)
     );
 }
