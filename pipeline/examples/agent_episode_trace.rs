@@ -1,7 +1,7 @@
 //! One evaluation episode of roundabout insertion driven by a trained agent, decision by
 //! decision: its Q-values, action and scalar inputs, where the ego is on its route, every
-//! other vehicle within 30 m (each 5 decisions), and at the end the vehicle nearest the ego
-//! (at a crash, the one it touched). The episode is the one `agent eval --seed SEED` draws
+//! other vehicle within 30 m (each 5 decisions), and at the end the vehicle whose centre is
+//! nearest the ego's. The episode is the one `agent eval --seed SEED` draws
 //! as episode EPISODE, at medium traffic.
 //!
 //!     cargo run --release -p pipeline --example agent_episode_trace -- AGENT EPISODE \
@@ -77,6 +77,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     env.set_traffic(TrafficLevel::Medium);
     env.set_aggressiveness(Some(aggressiveness));
     let mut observation = env.reset(derive_seed(seed, EVAL_STAGE, episode));
+    let start_s = env.world().unwrap().time_s();
     for step in 0.. {
         let q = policy.q_values(&[&observation]);
         let action = models::dqn::greedy_action(&q);
@@ -86,11 +87,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let ego = &world.vehicles()[ego_i];
             let r = world.route(ego);
             println!(
-                "decision {step:3} t {:5.1} Q [{:+.4} {:+.4} {:+.4}] action {action} ego {}->{} to yield {:6.1} to merge {:6.1} v {:4.1}",
-                (step * repeat) as f64 * 0.1,
-                q[0],
-                q[1],
-                q[2],
+                "decision {step:3} t {:5.1} Q {q:+.4?} action {action} ego {}->{} to yield {:6.1} to merge {:6.1} v {:4.1}",
+                world.time_s() - start_s,
                 r.entry,
                 r.exit,
                 r.yield_s - ego.s,
@@ -134,7 +132,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if let Some(world) = env.world() {
                 let ego_i = world.ego_index().unwrap();
                 let ego = &world.vehicles()[ego_i];
-                let touched =
+                let nearest =
                     (0..world.vehicles().len())
                         .filter(|&j| j != ego_i)
                         .min_by(|&a, &b| {
@@ -142,7 +140,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                             let db = world.vehicles()[b].position.distance(ego.position);
                             da.total_cmp(&db)
                         });
-                if let Some(j) = touched {
+                if let Some(j) = nearest {
                     println!("  nearest at the end: {}", describe(world, j, ego));
                 }
             }
