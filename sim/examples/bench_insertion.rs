@@ -4,6 +4,9 @@
 //!
 //!     cargo run --release -p sim --example bench_insertion -- --steps 100000 --traffic high
 //!
+//! `--size N`, `--stack N`, `--layers a,b,...` and `--antialias` change the view (the keys
+//! of `[agent.task.observation]`), to time a training config's rendering.
+//!
 //! CPU time is the main thread's (`/proc/thread-self/schedstat`, Linux): the environment
 //! steps on one thread.
 #![allow(clippy::print_stdout)]
@@ -35,6 +38,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut policy = String::from("random");
     let mut seed: u64 = 0;
     let mut arrivals: Option<f64> = None;
+    let mut view = sim::render::BevConfig::default();
     let mut args = std::env::args().skip(1);
     while let Some(flag) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{flag} needs a value"));
@@ -45,6 +49,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--policy" => policy = value()?,
             "--seed" => seed = value()?.parse()?,
             "--arrivals-per-s" => arrivals = Some(value()?.parse()?),
+            "--size" => {
+                view.width = value()?.parse()?;
+                view.height = view.width;
+            }
+            "--stack" => view.stack = value()?.parse()?,
+            "--antialias" => view.antialias = true,
+            "--layers" => {
+                view.layers = value()?
+                    .split(',')
+                    .map(|name| serde_json::from_value(serde_json::Value::from(name)))
+                    .collect::<Result<_, _>>()?
+            }
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -52,10 +68,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map_err(|e| format!("{map_path}: {e}"))?;
     let mut config = InsertionConfig::default();
     config.traffic.level = traffic;
+    config.observation = view;
     if let Some(a) = arrivals {
         config.traffic.arrivals_per_s = a;
     }
     let config_arrivals = config.traffic.arrivals_per_s;
+    let config_antialias = config.observation.antialias;
     let setup = InsertionSetup::new(Arc::new(map), config)?;
     let mut env = RoundaboutInsertion::new(Arc::clone(&setup));
     let spec = env.observation_spec();
@@ -95,7 +113,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "traffic": traffic.name(),
         "arrivals_per_s": config_arrivals,
         "policy": policy,
-        "observation": {"channels": spec.channels, "height": spec.height, "width": spec.width, "scalars": spec.scalars},
+        "observation": {"channels": spec.channels, "height": spec.height, "width": spec.width, "scalars": spec.scalars, "antialias": config_antialias},
         "layer_bytes": layer_bytes,
         "map": map_path,
     });

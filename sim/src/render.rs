@@ -70,6 +70,12 @@ pub struct BevConfig {
     pub line_width_m: f64,
     /// The speed drawn at full brightness in [`Layer::ObstacleSpeed`], m/s.
     pub full_speed_mps: f64,
+    /// Draw each pixel as bright as the share of it covered, instead of all or nothing by
+    /// whether its centre is. A car or a line moving by a fraction of a pixel then changes
+    /// the frame by a fraction, where without it a whole row of pixels can appear or vanish
+    /// (a 0.8 m stop line at 1.2 m a pixel falls between the row centres in a third of the
+    /// frames).
+    pub antialias: bool,
 }
 
 impl Default for BevConfig {
@@ -90,6 +96,7 @@ impl Default for BevConfig {
             path_width_m: 2.0,
             line_width_m: 0.8,
             full_speed_mps: 15.0,
+            antialias: false,
         }
     }
 }
@@ -160,6 +167,54 @@ const STOP_LINE_BIT: u8 = 2;
 pub struct MapRaster {
     spec: RasterSpec,
     bits: Vec<u8>,
+    /// Summed-area tables of the bits, built on the first antialiased frame.
+    area_sums: std::sync::OnceLock<AreaSums>,
+}
+
+/// Summed-area tables of a raster's navigable and stop line bits, interleaved: entry
+/// (x, y) of a `(width + 1)` × `(height + 1)` table counts the cells left of x and above y,
+/// so any box's count is four look-ups.
+#[derive(Debug, Clone)]
+struct AreaSums {
+    width: usize,
+    height: usize,
+    /// [navigable, stop line] counts per entry.
+    sums: Vec<[u32; 2]>,
+}
+
+impl AreaSums {
+    fn new(spec: &RasterSpec, bits: &[u8]) -> Self {
+        let (width, height) = (spec.width as usize, spec.height as usize);
+        let stride = width + 1;
+        let mut sums = vec![[0u32; 2]; stride * (height + 1)];
+        for y in 0..height {
+            let mut row = [0u32; 2];
+            for x in 0..width {
+                let b = bits[y * width + x];
+                row[0] += u32::from(b & NAVIGABLE_BIT);
+                row[1] += u32::from((b & STOP_LINE_BIT) >> 1);
+                let above = sums[y * stride + x + 1];
+                sums[(y + 1) * stride + x + 1] = [above[0] + row[0], above[1] + row[1]];
+            }
+        }
+        AreaSums {
+            width,
+            height,
+            sums,
+        }
+    }
+
+    /// [navigable, stop line] cells in the box of `box_w` × `box_h` cells whose top-left
+    /// corner is cell (`x0`, `y0`) (whole numbers); cells outside the raster count 0.
+    fn count(&self, x0: f64, y0: f64, box_w: f64, box_h: f64) -> [u32; 2] {
+        let clamp = |v: f64, max: usize| v.clamp(0.0, max as f64) as usize;
+        let (xa, xb) = (clamp(x0, self.width), clamp(x0 + box_w, self.width));
+        let (ya, yb) = (clamp(y0, self.height), clamp(y0 + box_h, self.height));
+        let stride = self.width + 1;
+        let (tl, tr) = (self.sums[ya * stride + xa], self.sums[ya * stride + xb]);
+        let (bl, br) = (self.sums[yb * stride + xa], self.sums[yb * stride + xb]);
+        [0, 1].map(|k| br[k] + tl[k] - tr[k] - bl[k])
+    }
 }
 
 impl MapRaster {
@@ -192,7 +247,16 @@ impl MapRaster {
                 *b |= STOP_LINE_BIT;
             }
         }
-        MapRaster { spec, bits }
+        MapRaster {
+            spec,
+            bits,
+            area_sums: Default::default(),
+        }
+    }
+
+    fn area_sums(&self) -> &AreaSums {
+        self.area_sums
+            .get_or_init(|| AreaSums::new(&self.spec, &self.bits))
     }
 
     pub fn spec(&self) -> &RasterSpec {
@@ -225,6 +289,7 @@ impl MapRaster {
                 *b |= NAVIGABLE_BIT;
             }
         }
+        self.area_sums = Default::default();
     }
 
     fn bits_at(&self, p: Point) -> u8 {
@@ -365,19 +430,19 @@ impl BevRenderer {
         let slot = |layer: Layer| cfg.layers.iter().position(|l| *l == layer);
         let (nav, lines) = (slot(Layer::Navigable), slot(Layer::StopLines));
         if nav.is_some() || lines.is_some() {
-            self.sample_static(&frame, out, nav, lines);
+            if cfg.antialias {
+                self.average_static(&frame, out, nav, lines);
+            } else {
+                self.sample_static(&frame, out, nav, lines);
+            }
         }
         if let Some(k) = slot(Layer::Path) {
             let pts: Vec<(f64, f64)> = scene.ego_path.iter().map(|p| frame.pixel(*p)).collect();
             let width_px = cfg.path_width_m * frame.px_lat;
-            stroke(
-                &mut out[k * plane..(k + 1) * plane],
-                w,
-                h,
-                &pts,
-                width_px,
-                255,
-            );
+            let buf = &mut out[k * plane..(k + 1) * plane];
+            for_each_stroke_quad(&pts, width_px, w, h, |quad| {
+                self.fill(buf, quad, 255);
+            });
         }
         let obstacles = slot(Layer::Obstacles);
         let speeds = slot(Layer::ObstacleSpeed);
@@ -385,13 +450,24 @@ impl BevRenderer {
             for actor in &scene.actors {
                 let corners = actor.footprint().corners().map(|p| frame.pixel(p));
                 if let Some(k) = obstacles {
-                    fill_convex(&mut out[k * plane..(k + 1) * plane], w, h, &corners, 255);
+                    self.fill(&mut out[k * plane..(k + 1) * plane], &corners, 255);
                 }
                 if let Some(k) = speeds {
                     let value = speed_brightness(actor.speed_mps, cfg.full_speed_mps);
-                    fill_convex(&mut out[k * plane..(k + 1) * plane], w, h, &corners, value);
+                    self.fill(&mut out[k * plane..(k + 1) * plane], &corners, value);
                 }
             }
+        }
+    }
+
+    /// Fills a convex polygon (output pixels) into one layer: the pixels whose centre it
+    /// covers, or with `antialias` every pixel by the share of it covered.
+    fn fill(&self, buf: &mut [u8], pts: &[(f64, f64)], value: u8) {
+        let (w, h) = (self.config.width, self.config.height);
+        if self.config.antialias {
+            fill_convex_coverage(buf, w, h, pts, value);
+        } else {
+            fill_convex(buf, w, h, pts, value);
         }
     }
 
@@ -436,6 +512,52 @@ impl BevRenderer {
             }
         }
     }
+
+    /// The navigable and stop line layers with `antialias`: each output pixel the mean of
+    /// the map raster over a box of the pixel's size around its centre (in the raster's
+    /// axes, so for a turned ego a box about the pixel's size rather than the pixel itself).
+    fn average_static(
+        &self,
+        frame: &EgoFrame,
+        out: &mut [u8],
+        nav: Option<usize>,
+        lines: Option<usize>,
+    ) {
+        let (w, h) = (self.config.width, self.config.height);
+        let plane = w * h;
+        let spec = self.raster.spec;
+        let sums = self.raster.area_sums();
+        // The box: one output pixel's extent in raster cells, at least one.
+        let cells = |px_per_m: f64| (1.0 / px_per_m / spec.resolution_m).round().max(1.0);
+        let (box_w, box_h) = (cells(frame.px_lat), cells(frame.px_fwd));
+        let area = box_w * box_h;
+        let scale = |count: u32| (255.0 * f64::from(count) / area).round() as u8;
+        // Raster coordinates of the boxes' corners are affine in (column, row): walk them.
+        let corner = |col: f64, row: f64| {
+            let (x, y) = map_pixel(&spec, frame.map_point(col, row));
+            (x - box_w / 2.0, y - box_h / 2.0)
+        };
+        let p00 = corner(0.0, 0.0);
+        let p01 = corner(1.0, 0.0);
+        let p10 = corner(0.0, 1.0);
+        let d_col = (p01.0 - p00.0, p01.1 - p00.1);
+        let d_row = (p10.0 - p00.0, p10.1 - p00.1);
+        for row in 0..h {
+            let (mut x, mut y) = (p00.0 + d_row.0 * row as f64, p00.1 + d_row.1 * row as f64);
+            for col in 0..w {
+                let [nav_count, line_count] = sums.count(x.round(), y.round(), box_w, box_h);
+                let i = row * w + col;
+                if let Some(k) = nav {
+                    out[k * plane + i] = scale(nav_count);
+                }
+                if let Some(k) = lines {
+                    out[k * plane + i] = scale(line_count);
+                }
+                x += d_col.0;
+                y += d_col.1;
+            }
+        }
+    }
 }
 
 /// The brightness of a vehicle moving at `speed_mps` in [`Layer::ObstacleSpeed`]: linear
@@ -467,21 +589,10 @@ pub fn fill_convex(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value
     if r1 < 0.0 {
         return;
     }
-    let n = pts.len();
     for row in r0..=r1 as usize {
-        let y = row as f64 + 0.5;
-        let (mut x0, mut x1) = (f64::INFINITY, f64::NEG_INFINITY);
-        for i in 0..n {
-            let (a, b) = (pts[i], pts[(i + 1) % n]);
-            if (a.1 <= y) != (b.1 <= y) {
-                let x = a.0 + (y - a.1) * (b.0 - a.0) / (b.1 - a.1);
-                x0 = x0.min(x);
-                x1 = x1.max(x);
-            }
-        }
-        if x0 > x1 {
+        let Some((x0, x1)) = convex_span(pts, row as f64 + 0.5) else {
             continue;
-        }
+        };
         let c0 = (x0 - 0.5).ceil().max(0.0);
         let c1 = (x1 - 0.5).floor().min(w as f64 - 1.0);
         if c0 > c1 {
@@ -492,9 +603,89 @@ pub fn fill_convex(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value
     }
 }
 
+/// Horizontal strips a pixel row is cut into by [`fill_convex_coverage`].
+const COVERAGE_STRIPS: usize = 8;
+
+/// Fills a convex polygon (continuous pixel coordinates, x right, y down) into a
+/// `w` × `h` buffer by coverage: each pixel it touches gets `value` scaled by the share of
+/// the pixel inside it (exact across a row, in eighth-of-a-pixel strips down a column), unless
+/// the pixel is already brighter.
+pub fn fill_convex_coverage(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value: u8) {
+    if pts.len() < 3 || !pts.iter().all(|p| p.0.is_finite() && p.1.is_finite()) {
+        return;
+    }
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let (mut left, mut right) = (f64::INFINITY, f64::NEG_INFINITY);
+    for p in pts {
+        lo = lo.min(p.1);
+        hi = hi.max(p.1);
+        left = left.min(p.0);
+        right = right.max(p.0);
+    }
+    if hi <= 0.0 || lo >= h as f64 || right <= 0.0 || left >= w as f64 {
+        return;
+    }
+    let (r0, r1) = (lo.floor().max(0.0) as usize, (hi.ceil() as usize).min(h));
+    let (c0, c1) = (
+        left.floor().max(0.0) as usize,
+        (right.ceil() as usize).min(w),
+    );
+    let strip_share = 1.0 / COVERAGE_STRIPS as f64;
+    let mut cover = vec![0.0_f64; c1 - c0];
+    for row in r0..r1 {
+        cover.fill(0.0);
+        for strip in 0..COVERAGE_STRIPS {
+            let y = row as f64 + (strip as f64 + 0.5) * strip_share;
+            let Some((x0, x1)) = convex_span(pts, y) else {
+                continue;
+            };
+            let (x0, x1) = (x0.max(c0 as f64), x1.min(c1 as f64));
+            if x0 >= x1 {
+                continue;
+            }
+            for col in x0.floor() as usize..x1.ceil() as usize {
+                let inside = x1.min(col as f64 + 1.0) - x0.max(col as f64);
+                cover[col - c0] += inside * strip_share;
+            }
+        }
+        for (col, share) in (c0..c1).zip(&cover) {
+            let v = (f64::from(value) * share.min(1.0)).round() as u8;
+            let px = &mut buf[row * w + col];
+            *px = (*px).max(v);
+        }
+    }
+}
+
+/// Where the horizontal line at `y` crosses a convex polygon: (leftmost, rightmost) x.
+fn convex_span(pts: &[(f64, f64)], y: f64) -> Option<(f64, f64)> {
+    let n = pts.len();
+    let (mut x0, mut x1) = (f64::INFINITY, f64::NEG_INFINITY);
+    for i in 0..n {
+        let (a, b) = (pts[i], pts[(i + 1) % n]);
+        if (a.1 <= y) != (b.1 <= y) {
+            let x = a.0 + (y - a.1) * (b.0 - a.0) / (b.1 - a.1);
+            x0 = x0.min(x);
+            x1 = x1.max(x);
+        }
+    }
+    (x0 <= x1).then_some((x0, x1))
+}
+
 /// Draws a polyline `width` pixels wide: a rectangle per segment and a square at each
 /// inner vertex (so bends have no notches).
 pub fn stroke(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], width: f64, value: u8) {
+    for_each_stroke_quad(pts, width, w, h, |quad| fill_convex(buf, w, h, quad, value));
+}
+
+/// The quadrilaterals that draw a polyline `width` pixels wide in a `w` × `h` buffer (see
+/// [`stroke`]), those wholly outside it left out.
+fn for_each_stroke_quad(
+    pts: &[(f64, f64)],
+    width: f64,
+    w: usize,
+    h: usize,
+    mut draw: impl FnMut(&[(f64, f64); 4]),
+) {
     let half = width / 2.0;
     let (fw, fh) = (w as f64, h as f64);
     let outside = |a: (f64, f64), b: (f64, f64)| {
@@ -514,35 +705,23 @@ pub fn stroke(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], width: f64
             continue;
         }
         let (nx, ny) = (-dy / len * half, dx / len * half);
-        fill_convex(
-            buf,
-            w,
-            h,
-            &[
-                (a.0 + nx, a.1 + ny),
-                (b.0 + nx, b.1 + ny),
-                (b.0 - nx, b.1 - ny),
-                (a.0 - nx, a.1 - ny),
-            ],
-            value,
-        );
+        draw(&[
+            (a.0 + nx, a.1 + ny),
+            (b.0 + nx, b.1 + ny),
+            (b.0 - nx, b.1 - ny),
+            (a.0 - nx, a.1 - ny),
+        ]);
     }
     for p in pts.iter().skip(1).take(pts.len().saturating_sub(2)) {
         if outside(*p, *p) {
             continue;
         }
-        fill_convex(
-            buf,
-            w,
-            h,
-            &[
-                (p.0 - half, p.1 - half),
-                (p.0 + half, p.1 - half),
-                (p.0 + half, p.1 + half),
-                (p.0 - half, p.1 + half),
-            ],
-            value,
-        );
+        draw(&[
+            (p.0 - half, p.1 - half),
+            (p.0 + half, p.1 - half),
+            (p.0 + half, p.1 + half),
+            (p.0 - half, p.1 + half),
+        ]);
     }
 }
 
@@ -757,6 +936,117 @@ mod tests {
         assert_eq!((at(0, 15.0), at(1, 15.0)), (0, 0));
         assert_eq!(speed_brightness(-2.0, 15.0), 0);
         assert_eq!(speed_brightness(f64::NAN, 15.0), 0);
+    }
+
+    /// The straight road with a give-way line across it at x = 10 m.
+    fn straight_road_with_line() -> (Map, Bounds) {
+        use maps::model::{StopKind, StopLine, StopLineId, StopLineSource};
+        let (mut map, region) = straight_road_with_region();
+        let id = StopLineId(0);
+        map.stop_lines.insert(
+            id,
+            StopLine {
+                id,
+                kind: StopKind::GiveWay,
+                source: StopLineSource::OsmNode { id: 1 },
+                lanes: Vec::new(),
+                line: vec![Point::new(10.0, -3.0), Point::new(10.0, 3.0)],
+                s_on_lane_m: 110.0,
+            },
+        );
+        (map, region)
+    }
+
+    /// The sum and brightness-weighted mean row of `rows` of one layer of a `size` ×
+    /// `size` frame.
+    fn layer_mass(
+        out: &[u8],
+        layer: usize,
+        size: usize,
+        rows: std::ops::Range<usize>,
+    ) -> (f64, f64) {
+        let plane = &out[layer * size * size..(layer + 1) * size * size];
+        let (mut sum, mut weighted) = (0.0, 0.0);
+        for row in rows {
+            for v in &plane[row * size..(row + 1) * size] {
+                sum += f64::from(*v);
+                weighted += f64::from(*v) * (row as f64 + 0.5);
+            }
+        }
+        (sum, weighted / sum)
+    }
+
+    /// At 1.2 m a pixel a 0.8 m line falls between row centres in some frames. Antialiased
+    /// it shows in every frame, about as bright in each, and a car ahead keeps its
+    /// brightness while its centre of brightness follows it by fractions of a pixel.
+    #[test]
+    fn antialiasing_keeps_thin_lines_and_moves_cars_smoothly() {
+        let (map, region) = straight_road_with_line();
+        let view = |antialias: bool| BevConfig {
+            width: 42,
+            height: 42,
+            layers: vec![Layer::StopLines, Layer::Obstacles],
+            antialias,
+            ..BevConfig::default()
+        };
+        let path = [Point::new(-20.0, 0.0), Point::new(20.0, 0.0)];
+        let px_per_m = 42.0 / 50.0;
+        let (mut line_missed, mut line_sums, mut car_sums) = (0, Vec::new(), Vec::new());
+        let mut last_car_row = f64::NEG_INFINITY;
+        for antialias in [false, true] {
+            let renderer = BevRenderer::new(&map, region, view(antialias)).expect("renderer");
+            let mut out = Vec::new();
+            // The ego drives through 2.5 m in 0.1 m steps; a car stands at x = 12 m.
+            for step in 0..25 {
+                let x = -2.0 + 0.1 * f64::from(step);
+                let scene = Scene {
+                    map: &map,
+                    time_s: 0.0,
+                    actors: vec![
+                        car(0, Point::new(x, 0.0), 0.0, 0.0),
+                        car(1, Point::new(12.0, 0.0), 0.0, 0.0),
+                    ],
+                    ego: 0,
+                    ego_path: &path,
+                };
+                renderer.render(&scene, &mut out);
+                let (line_sum, _) = layer_mass(&out, 0, 42, 0..42);
+                if !antialias {
+                    line_missed += usize::from(line_sum == 0.0);
+                    continue;
+                }
+                line_sums.push(line_sum);
+                car_sums.push(layer_mass(&out, 1, 42, 0..42).0);
+                // The car alone: the rows above the ego's footprint.
+                let (_, car_row) = layer_mass(&out, 1, 42, 0..15);
+                let expected = 21.0 - (12.0 - x) * px_per_m;
+                assert!(
+                    (car_row - expected).abs() < 0.1,
+                    "car at row {car_row}, expected {expected}"
+                );
+                assert!(
+                    car_row >= last_car_row,
+                    "the car went back to row {car_row}"
+                );
+                last_car_row = car_row;
+            }
+        }
+        assert!(
+            line_missed > 0,
+            "without antialiasing the line showed in every frame"
+        );
+        let spread = |v: &[f64]| {
+            v.iter().fold((f64::INFINITY, 0.0_f64), |(lo, hi), s| {
+                (lo.min(*s), hi.max(*s))
+            })
+        };
+        let (lo, hi) = spread(&line_sums);
+        assert!(lo > 0.0 && hi / lo < 1.25, "line brightness {lo} to {hi}");
+        let (lo, hi) = spread(&car_sums);
+        assert!(hi / lo < 1.05, "car brightness {lo} to {hi}");
+        // Two 4 × 2 m cars cover 2 × 8 m² = 2 × 8 × 0.84² px².
+        let area = 2.0 * 8.0 * px_per_m * px_per_m * 255.0;
+        assert!((lo / area - 1.0).abs() < 0.05, "{lo} against {area}");
     }
 
     /// A straight east-going lane: ahead of a north-facing ego it shows on the right.
