@@ -74,7 +74,9 @@ pub struct BevConfig {
     /// whether its centre is. A car or a line moving by a fraction of a pixel then changes
     /// the frame by a fraction, where without it a whole row of pixels can appear or vanish
     /// (a 0.8 m stop line at 1.2 m a pixel falls between the row centres in a third of the
-    /// frames).
+    /// frames). In [`Layer::ObstacleSpeed`] an edge pixel is the vehicle's brightness times
+    /// that share; [`Layer::Obstacles`] holds the share itself. Where vehicles overlap, the
+    /// brighter value wins.
     pub antialias: bool,
 }
 
