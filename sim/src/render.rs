@@ -569,11 +569,11 @@ fn speed_brightness(speed_mps: f64, full_speed_mps: f64) -> u8 {
     ((speed_mps / full_speed_mps).clamp(0.0, 1.0) * 255.0).round() as u8
 }
 
-/// Fills a convex polygon (continuous pixel coordinates, x right, y down) into a
-/// `w` × `h` buffer: every pixel whose centre lies inside gets `value`.
-pub fn fill_convex(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value: u8) {
+/// The extent `[top, bottom, left, right]` of a polygon (continuous pixel coordinates) that
+/// overlaps a `w` × `h` buffer; None for fewer than 3 points, a non-finite one, or no overlap.
+fn visible_extent(pts: &[(f64, f64)], w: usize, h: usize) -> Option<[f64; 4]> {
     if pts.len() < 3 || !pts.iter().all(|p| p.0.is_finite() && p.1.is_finite()) {
-        return;
+        return None;
     }
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     let (mut left, mut right) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -583,9 +583,16 @@ pub fn fill_convex(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value
         left = left.min(p.0);
         right = right.max(p.0);
     }
-    if hi <= 0.0 || lo >= h as f64 || right <= 0.0 || left >= w as f64 {
+    let outside = hi <= 0.0 || lo >= h as f64 || right <= 0.0 || left >= w as f64;
+    (!outside).then_some([lo, hi, left, right])
+}
+
+/// Fills a convex polygon (continuous pixel coordinates, x right, y down) into a
+/// `w` × `h` buffer: every pixel whose centre lies inside gets `value`.
+pub fn fill_convex(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value: u8) {
+    let Some([lo, hi, _, _]) = visible_extent(pts, w, h) else {
         return;
-    }
+    };
     let r0 = (lo - 0.5).ceil().max(0.0) as usize;
     let r1 = ((hi - 0.5).floor().min(h as f64 - 1.0)).max(-1.0);
     if r1 < 0.0 {
@@ -613,20 +620,9 @@ const COVERAGE_STRIPS: usize = 8;
 /// the pixel inside it (exact across a row, in eighth-of-a-pixel strips down a column), unless
 /// the pixel is already brighter.
 pub fn fill_convex_coverage(buf: &mut [u8], w: usize, h: usize, pts: &[(f64, f64)], value: u8) {
-    if pts.len() < 3 || !pts.iter().all(|p| p.0.is_finite() && p.1.is_finite()) {
+    let Some([lo, hi, left, right]) = visible_extent(pts, w, h) else {
         return;
-    }
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    let (mut left, mut right) = (f64::INFINITY, f64::NEG_INFINITY);
-    for p in pts {
-        lo = lo.min(p.1);
-        hi = hi.max(p.1);
-        left = left.min(p.0);
-        right = right.max(p.0);
-    }
-    if hi <= 0.0 || lo >= h as f64 || right <= 0.0 || left >= w as f64 {
-        return;
-    }
+    };
     let (r0, r1) = (lo.floor().max(0.0) as usize, (hi.ceil() as usize).min(h));
     let (c0, c1) = (
         left.floor().max(0.0) as usize,
