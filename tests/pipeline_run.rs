@@ -154,7 +154,8 @@ fn runs_every_stage_then_skips_what_did_not_change() {
     assert_eq!(
         lines.next(),
         Some(
-            "policy,traffic,aggressiveness,episode,outcome,steps,return,mean_speed_mps,time_to_enter_s"
+            "policy,traffic,aggressiveness,episode,outcome,steps,return,mean_speed_mps,time_to_enter_s,\
+             close_following_steps,cut_in_steps,entry_lag_s"
         )
     );
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
@@ -177,6 +178,18 @@ fn runs_every_stage_then_skips_what_did_not_change() {
                 "{name}: {count} {outcome} against {key} {fraction}"
             );
         }
+        let total = |column: usize| -> usize {
+            mine.iter()
+                .map(|r| r[column].parse::<usize>().unwrap())
+                .sum()
+        };
+        let close_following = p["close_following_share"].as_f64().unwrap();
+        assert!(
+            (total(9) as f64 / total(5).max(1) as f64 - close_following).abs() < 1e-9,
+            "{name}: {} close-following steps of {} against {close_following}",
+            total(9),
+            total(5)
+        );
     }
 
     // The simulated log reads back exactly and projects to the simulator's own frames.

@@ -1,6 +1,7 @@
 //! The evaluation harness: runs a policy for many episodes of roundabout insertion under
 //! several conditions (traffic level × the ego's aggressiveness), in parallel with rayon,
-//! and tabulates reaches, crashes, off-roads and time-overs.
+//! and tabulates reaches, crashes, off-roads and time-overs, speed, time to enter, and the
+//! share of steps in the situations the reward counts as danger.
 //!
 //! Plugging in a learned policy: implement [`Policy`] (its `act` gets a batch of inputs,
 //! one per running episode of a chunk, so a Q-network can do one forward pass per step)
@@ -84,7 +85,23 @@ pub struct ConditionResult {
     /// Mean over episodes in which the ego entered, s (None if it never did).
     pub mean_time_to_enter_s: Option<f64>,
     pub mean_steps: f64,
+    /// Shares of all the condition's world steps in which the ego followed closer than the
+    /// reward's headway, and was in the ring just in front of a circulating vehicle (the
+    /// situations r_danger penalises): how much risk the policy takes short of crashing.
+    #[serde(default)]
+    pub close_following_share: f64,
+    #[serde(default)]
+    pub cut_in_share: f64,
+    /// Share of the episodes in which the ego entered that it entered in front of a
+    /// circulating vehicle less than [`TIGHT_ENTRY_S`] from its merge point
+    /// ([`EpisodeSummary::entry_lag_s`]): how small the gaps it takes are.
+    #[serde(default)]
+    pub tight_entry_share: f64,
 }
+
+/// An entry is tight when a circulating vehicle is less than this from the ego's merge
+/// point, s: the reward's default `cut_in_s`, within which being in front of one is danger.
+pub const TIGHT_ENTRY_S: f64 = 3.0;
 
 /// Runs `options.episodes` episodes of every condition with policies from `make_policy`;
 /// `progress` is told how many episodes each finished chunk held. Summaries come back per
@@ -232,6 +249,10 @@ pub fn summarise(condition: Condition, episodes: &[EpisodeSummary]) -> Condition
         }
     };
     let entered: Vec<f64> = episodes.iter().filter_map(|e| e.time_to_enter_s).collect();
+    let total_steps = episodes.iter().map(|e| e.steps).sum::<usize>().max(1) as f64;
+    let share = |f: &dyn Fn(&EpisodeSummary) -> usize| {
+        episodes.iter().map(f).sum::<usize>() as f64 / total_steps
+    };
     ConditionResult {
         traffic: condition.traffic,
         aggressiveness: condition.aggressiveness,
@@ -245,19 +266,30 @@ pub fn summarise(condition: Condition, episodes: &[EpisodeSummary]) -> Condition
         mean_time_to_enter_s: (!entered.is_empty())
             .then(|| entered.iter().sum::<f64>() / entered.len() as f64),
         mean_steps: mean(&|e| e.steps as f64),
+        close_following_share: share(&|e| e.close_following_steps),
+        cut_in_share: share(&|e| e.cut_in_steps),
+        tight_entry_share: if entered.is_empty() {
+            0.0
+        } else {
+            episodes
+                .iter()
+                .filter(|e| e.entry_lag_s.is_some_and(|lag| lag < TIGHT_ENTRY_S))
+                .count() as f64
+                / entered.len() as f64
+        },
     }
 }
 
 /// A markdown table: one row per (policy, condition).
 pub fn markdown_table(rows: &[(String, Vec<ConditionResult>)]) -> String {
     let mut out = String::from(
-        "| policy | traffic | aggressiveness | episodes | reaches | crashes | time-overs | off-road | mean speed m/s | time to enter s |\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+        "| policy | traffic | aggressiveness | episodes | reaches | crashes | time-overs | off-road | mean speed m/s | time to enter s | close following | tight entries |\n\
+         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
     );
     for (policy, results) in rows {
         for r in results {
             out.push_str(&format!(
-                "| {policy} | {} | {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} |\n",
+                "| {policy} | {} | {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {:.2} % | {:.1} % |\n",
                 r.traffic.name(),
                 r.aggressiveness,
                 r.episodes,
@@ -267,6 +299,8 @@ pub fn markdown_table(rows: &[(String, Vec<ConditionResult>)]) -> String {
                 100.0 * r.off_roads,
                 r.mean_speed_mps,
                 r.mean_time_to_enter_s.map_or("-".into(), |t| format!("{t:.1}")),
+                100.0 * r.close_following_share,
+                100.0 * r.tight_entry_share,
             ));
         }
     }

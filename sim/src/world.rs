@@ -20,7 +20,7 @@
 
 use std::sync::Arc;
 
-use maps::Point;
+use maps::{LaneId, Point};
 use rand::Rng;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -794,10 +794,7 @@ impl World {
                 if j == i || !o.committed {
                     return true;
                 }
-                // Along the other's route, from its centre to where it enters the merge lane
-                // (negative once past; the lane may be shorter than a car).
-                let Some(start) = self.layout.routes[o.route].ring_lane_start(route.merge_lane)
-                else {
+                let Some(d) = self.to_lane_start(o, route.merge_lane) else {
                     // Not coming round to the merge lane; it may still sweep the entry's
                     // mouth (leaving the ring here): wait while it is in or near that zone.
                     return route
@@ -811,7 +808,6 @@ impl World {
                                         > my_time + v.driver.critical_gap_s)
                         });
                 };
-                let d = start - o.s;
                 if d >= self.config.horizon_m {
                     return true;
                 }
@@ -834,6 +830,33 @@ impl World {
         for i in commit {
             self.vehicles[i].committed = true;
         }
+    }
+
+    /// Along `o`'s route, from its centre to where it enters ring lane `lane` (negative once
+    /// past; the lane may be shorter than a car); None if its route does not drive that lane.
+    fn to_lane_start(&self, o: &Vehicle, lane: LaneId) -> Option<f64> {
+        Some(self.layout.routes[o.route].ring_lane_start(lane)? - o.s)
+    }
+
+    /// The gap vehicle `i` has in front of the circulating traffic at its merge point: the
+    /// least time a committed vehicle within the horizon needs for its front to reach that
+    /// point (at its speed, but at least 2 m/s as gap acceptance assumes), 0 while one
+    /// straddles it; None when none is coming. Read as the ego enters, it is the gap the
+    /// ego accepted.
+    pub fn merge_lag_s(&self, i: usize) -> Option<f64> {
+        let merge_lane = self.layout.routes[self.vehicles[i].route].merge_lane;
+        self.vehicles
+            .iter()
+            .enumerate()
+            .filter(|&(j, o)| j != i && o.committed)
+            .filter_map(|(_, o)| {
+                let d = self.to_lane_start(o, merge_lane)?;
+                if d >= self.config.horizon_m || d <= -o.length {
+                    return None; // far away, or past the merge point
+                }
+                Some((d - o.length / 2.0).max(0.0) / o.speed.max(2.0))
+            })
+            .min_by(f64::total_cmp)
     }
 
     /// Acceleration from a vehicle's driver model: IDM behind its leader, and behind its

@@ -119,7 +119,7 @@ fn evaluation_is_the_same_with_one_or_two_threads() {
 
 /// The baselines behave as their names say: never going never arrives (and, waiting at
 /// the line, is never hit), always going crashes in high traffic, more than any rule, and
-/// judging the gap beats acting at random.
+/// takes more tight gaps than any rule; judging the gap beats acting at random.
 #[test]
 fn baselines_show_what_the_task_asks() {
     let setup = setup();
@@ -159,7 +159,14 @@ fn baselines_show_what_the_task_asks() {
             rule.crashes,
             go.crashes
         );
+        assert!(
+            rule.tight_entry_share < go.tight_entry_share,
+            "rule {threshold_m} m entered tight in {} of its entries, always Permitted in {}",
+            rule.tight_entry_share,
+            go.tight_entry_share
+        );
     }
+    assert_eq!(stop.tight_entry_share, 0.0);
 }
 
 /// With `rule_inputs`, the scalar inputs end with what the rule-based baselines see, the

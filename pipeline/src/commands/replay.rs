@@ -411,38 +411,34 @@ impl Report {
 /// What the policies that read the bird's-eye view (the agent, behaviour cloning) see;
 /// offline training (`agent train --offline`) learns from the same.
 pub(crate) struct Views {
-    bev: BevConfig,
-    /// Log frames between stacked frames (1: consecutive).
-    frame_spacing: usize,
+    /// The task the policies were trained on: its view, frame spacing and scalar inputs.
+    task: InsertionConfig,
     renderer: BevRenderer,
-    speed_scale_mps: f64,
+    /// The route's nominal speed the policies are told (before the ego's style scales it).
     target_speed_mps: f64,
 }
 
 impl Views {
-    /// The views of `bev` over `map` (read from `map_path`), their stacked frames
-    /// `frame_spacing` log frames apart, with the scalars' speed scale and the target speed
-    /// the policies are told.
+    /// The views of `task`'s observation over `map` (read from `map_path`), their stacked
+    /// frames `task.frame_spacing()` log frames apart, with the route's nominal speed
+    /// `target_speed_mps` in the scalars.
     pub(crate) fn new(
         map: &maps::Map,
         map_path: &Path,
-        bev: BevConfig,
-        frame_spacing: usize,
-        speed_scale_mps: f64,
+        task: InsertionConfig,
         target_speed_mps: f64,
     ) -> Result<Views> {
-        let renderer = BevRenderer::new(map, map.bounds(), bev.clone()).map_err(|e| {
-            CliError::file(
-                map_path,
-                e.to_string(),
-                "give the map the logs were recorded on",
-            )
-        })?;
+        let renderer =
+            BevRenderer::new(map, map.bounds(), task.observation.clone()).map_err(|e| {
+                CliError::file(
+                    map_path,
+                    e.to_string(),
+                    "give the map the logs were recorded on",
+                )
+            })?;
         Ok(Views {
-            bev,
-            frame_spacing,
+            task,
             renderer,
-            speed_scale_mps,
             target_speed_mps,
         })
     }
@@ -462,7 +458,7 @@ impl Views {
             approach.track,
             &NoiseConfig::default(),
         );
-        let frame_len = self.bev.frame_len();
+        let frame_len = self.task.observation.frame_len();
         let frames = projected
             .iter()
             .zip(layers.chunks_exact(frame_len))
@@ -470,8 +466,8 @@ impl Views {
         let stacks = stacks_at(
             frames,
             frame_len,
-            self.bev.stack,
-            self.frame_spacing,
+            self.task.observation.stack,
+            self.task.frame_spacing(),
             &approach.frames,
         );
         stacks
@@ -480,7 +476,8 @@ impl Views {
             .collect()
     }
 
-    /// The task's observation: the layer stack and its scalars (no last action: all zero).
+    /// The task's observation: the layer stack and its scalars (no last action: all zero),
+    /// the target speed that of an ego of `aggressiveness` in the task.
     pub(crate) fn observation(
         &self,
         stack: Vec<u8>,
@@ -492,8 +489,8 @@ impl Views {
             layers: stack,
             scalars: observation_scalars(
                 speed,
-                self.target_speed_mps,
-                self.speed_scale_mps,
+                self.target_speed_mps * self.task.ego_speed_factor(aggressiveness),
+                self.task.speed_scale_mps,
                 aggressiveness,
                 last,
             ),
@@ -501,7 +498,7 @@ impl Views {
     }
 
     pub(crate) fn spec(&self) -> ObservationSpec {
-        observation_spec(&self.bev)
+        observation_spec(&self.task.observation)
     }
 }
 
@@ -616,17 +613,18 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     }
     let device = models::cpu_device();
     // The agent, and the view it was trained on (behaviour cloning sees the same).
-    let (agent, bev, frame_spacing, speed_scale_mps) = match &args.agent {
+    let (agent, task) = match &args.agent {
         None => (
             None,
-            BevConfig {
-                width: 42,
-                height: 42,
-                stack: 2,
-                ..BevConfig::default()
+            InsertionConfig {
+                observation: BevConfig {
+                    width: 42,
+                    height: 42,
+                    stack: 2,
+                    ..BevConfig::default()
+                },
+                ..InsertionConfig::default()
             },
-            1,
-            15.0,
         ),
         Some(dir) => {
             progress.step(&format!("loading the agent {}", dir.display()));
@@ -641,22 +639,10 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                 description.shape.actions,
                 device.clone(),
             );
-            (
-                Some(policy),
-                config.observation.clone(),
-                config.frame_spacing(),
-                config.speed_scale_mps,
-            )
+            (Some(policy), config)
         }
     };
-    let views = Views::new(
-        &map,
-        &args.map,
-        bev,
-        frame_spacing,
-        speed_scale_mps,
-        args.target_speed,
-    )?;
+    let views = Views::new(&map, &args.map, task, args.target_speed)?;
     let labels = ctx.config.logs.decisions.clone();
 
     // Behaviour cloning on the training logs' go and wait frames.

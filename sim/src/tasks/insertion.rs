@@ -136,6 +136,13 @@ pub struct InsertionConfig {
     /// `frame_steps`-th. So an agent trained deciding every 3 steps can decide every step on
     /// frames as far apart as it was trained on, and a stack can span more time.
     pub frame_steps: Option<usize>,
+    /// The ego drives in the style of a world driver of its own aggressiveness: its target
+    /// speed is the route's nominal speed times `traffic.drivers.speed_factor`, and it
+    /// keeps the IDM following distance (time headway, minimum gap) of that driver. Off (the
+    /// default), it drives as a driver of aggressiveness 0.5 whatever its own, which then
+    /// changes only the reward (σ); at 0.5 both are the same. Whether to take a gap stays
+    /// the agent's decision either way.
+    pub ego_style_from_aggressiveness: bool,
 }
 
 impl InsertionConfig {
@@ -155,6 +162,16 @@ impl InsertionConfig {
     fn frames_every_step(&self) -> bool {
         self.frame_steps
             .is_some_and(|f| f % self.action_repeat.max(1) != 0)
+    }
+
+    /// The ego's target speed over its route's nominal speed at `aggressiveness`: the world
+    /// drivers' speed factor with [`InsertionConfig::ego_style_from_aggressiveness`], else 1.
+    pub fn ego_speed_factor(&self, aggressiveness: f64) -> f64 {
+        if self.ego_style_from_aggressiveness {
+            self.traffic.drivers.speed_factor.at(aggressiveness)
+        } else {
+            1.0
+        }
     }
 
     /// How many drawn frames apart the stacked ones are.
@@ -188,6 +205,7 @@ impl Default for InsertionConfig {
             rule_inputs: false,
             action_repeat: 1,
             frame_steps: None,
+            ego_style_from_aggressiveness: false,
         }
     }
 }
@@ -348,6 +366,26 @@ pub struct EpisodeSummary {
     /// From the start until the ego's front passed the yield line, s (None if it never did).
     pub time_to_enter_s: Option<f64>,
     pub aggressiveness: f64,
+    /// World steps in which the ego followed the vehicle ahead closer than the reward's
+    /// `headway_s` of travel (r_danger's first term).
+    #[serde(default)]
+    pub close_following_steps: usize,
+    /// World steps in which the ego was in the ring within the reward's `cut_in_s` of a
+    /// circulating vehicle's travel in front of it (r_danger's second term).
+    #[serde(default)]
+    pub cut_in_steps: usize,
+    /// The gap the ego accepted: as its front passed the yield line, the time the nearest
+    /// circulating vehicle needed to reach its merge point ([`World::merge_lag_s`]), s (None
+    /// if it never entered or nobody was coming).
+    #[serde(default)]
+    pub entry_lag_s: Option<f64>,
+}
+
+/// The danger the reward penalises, in one world step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct Danger {
+    close_following: bool,
+    cut_in: bool,
 }
 
 /// The roundabout insertion task as an [`Env`].
@@ -367,11 +405,18 @@ pub struct RoundaboutInsertion {
     episode_return: f64,
     speed_sum: f64,
     entered_at_s: Option<f64>,
+    entry_lag_s: Option<f64>,
+    close_following_steps: usize,
+    cut_in_steps: usize,
     outcome: Option<Outcome>,
     trajectory: Vec<Point>,
     view: EgoView,
-    /// The ego's following model (IDM with a middle driver's parameters).
+    /// The ego's following model: IDM with the parameters of a driver of aggressiveness 0.5,
+    /// or of the ego's own with [`InsertionConfig::ego_style_from_aggressiveness`].
     follower: Driver,
+    /// The ego's target speed over its route's nominal speed (1 unless the ego's style
+    /// follows its aggressiveness).
+    speed_factor: f64,
 }
 
 impl RoundaboutInsertion {
@@ -394,10 +439,14 @@ impl RoundaboutInsertion {
             episode_return: 0.0,
             speed_sum: 0.0,
             entered_at_s: None,
+            entry_lag_s: None,
+            close_following_steps: 0,
+            cut_in_steps: 0,
             outcome: None,
             trajectory: Vec::new(),
             view,
             follower,
+            speed_factor: 1.0,
         }
     }
 
@@ -468,6 +517,9 @@ impl RoundaboutInsertion {
             },
             time_to_enter_s: self.entered_at_s,
             aggressiveness: self.aggressiveness,
+            close_following_steps: self.close_following_steps,
+            cut_in_steps: self.cut_in_steps,
+            entry_lag_s: self.entry_lag_s,
         }
     }
 
@@ -510,15 +562,25 @@ impl RoundaboutInsertion {
         Some((w, w.ego_index()?))
     }
 
+    /// The ego's following model and target-speed factor for this episode's aggressiveness.
+    fn ego_style(&self) -> (Driver, f64) {
+        let c = &self.config;
+        let style = if c.ego_style_from_aggressiveness {
+            self.aggressiveness
+        } else {
+            0.5
+        };
+        (
+            Driver::new(&c.traffic.drivers, style),
+            c.ego_speed_factor(self.aggressiveness),
+        )
+    }
+
     /// The speed the ego aims for under Permitted: its route's nominal speed (limit and
-    /// curves) at its front.
+    /// curves) at its front, times its style's speed factor.
     fn target_speed(&self, world: &World, ego: usize) -> f64 {
         let me = &world.vehicles()[ego];
-        world
-            .route(me)
-            .path
-            .speed_at(me.s + me.length / 2.0)
-            .max(0.5)
+        (world.route(me).path.speed_at(me.s + me.length / 2.0) * self.speed_factor).max(0.5)
     }
 
     /// The ego's acceleration under `action`.
@@ -618,8 +680,8 @@ impl RoundaboutInsertion {
         );
     }
 
-    /// Reward terms that apply every step: speed, indecision, danger.
-    fn step_reward(&self, world: &World, ego: usize, action: Action) -> f64 {
+    /// Reward terms that apply every step: speed, indecision, and r_danger for `danger`.
+    fn step_reward(&self, world: &World, ego: usize, action: Action, danger: Danger) -> f64 {
         let r = &self.config.reward;
         let me = &world.vehicles()[ego];
         let sigma = 1.0 - self.aggressiveness;
@@ -631,18 +693,28 @@ impl RoundaboutInsertion {
                 Action::Permitted => 0.0,
             };
         }
-        if world
-            .leader(ego)
-            .is_some_and(|l| l.gap_m < me.speed * r.headway_s)
-        {
+        if danger.close_following {
             reward -= r.headway_penalty * sigma;
         }
-        let route = world.route(me);
-        let in_ring = me.committed && me.s < route.exit_s;
-        if in_ring && self.cut_in(world, ego) {
+        if danger.cut_in {
             reward -= r.cut_in_penalty * sigma;
         }
         reward
+    }
+
+    /// Which of r_danger's situations the ego is in: following closer than `headway_s`,
+    /// or in the ring just in front of a circulating vehicle.
+    fn danger(&self, world: &World, ego: usize) -> Danger {
+        let r = &self.config.reward;
+        let me = &world.vehicles()[ego];
+        let close_following = world
+            .leader(ego)
+            .is_some_and(|l| l.gap_m < me.speed * r.headway_s);
+        let in_ring = me.committed && me.s < world.route(me).exit_s;
+        Danger {
+            close_following,
+            cut_in: in_ring && self.cut_in(world, ego),
+        }
     }
 
     /// Whether a circulating vehicle has the ego as the vehicle ahead of it and would
@@ -681,6 +753,7 @@ impl Env for RoundaboutInsertion {
         let layout = Arc::clone(self.setup.roundabouts.layout(self.roundabout));
         let drawn_aggressiveness: f64 = rng.random();
         self.aggressiveness = self.config.aggressiveness.unwrap_or(drawn_aggressiveness);
+        (self.follower, self.speed_factor) = self.ego_style();
         let speed_draw: f64 = rng.random();
         let world_seed: u64 = rng.random();
         let mut world = World::new(
@@ -694,7 +767,7 @@ impl Env for RoundaboutInsertion {
         let s0 = (route.yield_s - self.config.start_distance_m - self.config.ego.length_m / 2.0)
             .max(self.config.ego.length_m / 2.0);
         let (lo, hi) = self.config.start_speed_fraction;
-        let target = route.path.speed_at(s0 + self.config.ego.length_m / 2.0);
+        let target = route.path.speed_at(s0 + self.config.ego.length_m / 2.0) * self.speed_factor;
         let speed = target * (lo + (hi - lo) * speed_draw);
         world.insert_ego(self.route, s0, speed, 8.0);
         self.goal_s = (route.exit_s + self.config.goal_past_exit_m).min(route.path.length() - 0.1);
@@ -709,6 +782,9 @@ impl Env for RoundaboutInsertion {
         self.episode_return = 0.0;
         self.speed_sum = 0.0;
         self.entered_at_s = None;
+        self.entry_lag_s = None;
+        self.close_following_steps = 0;
+        self.cut_in_steps = 0;
         self.outcome = None;
         self.trajectory.clear();
         if let Some((w, e)) = self.world_and_ego() {
@@ -783,8 +859,12 @@ impl RoundaboutInsertion {
         let elapsed = world.time_s() - self.start_time_s;
         if committed && self.entered_at_s.is_none() {
             self.entered_at_s = Some(elapsed);
+            self.entry_lag_s = world.merge_lag_s(ego);
         }
-        let mut reward = self.step_reward(world, ego, action);
+        let danger = self.danger(world, ego);
+        self.close_following_steps += usize::from(danger.close_following);
+        self.cut_in_steps += usize::from(danger.cut_in);
+        let mut reward = self.step_reward(world, ego, action, danger);
         let r = self.config.reward;
         let sigma = 1.0 - self.aggressiveness;
         let raster = self.setup.roundabouts.renderer(self.roundabout).raster();
@@ -929,5 +1009,43 @@ mod tests {
                 }
             );
         }
+    }
+
+    /// With `ego_style_from_aggressiveness`, an aggressive ego aims faster and drives a
+    /// whole always-Permitted episode faster than a passive one; without it, aggressiveness
+    /// changes the reward only and the two episodes drive the same.
+    #[test]
+    fn the_ego_drives_in_its_aggressiveness_style_only_when_asked() {
+        let map = Arc::new(crate::test_maps::montlake());
+        let episode = |style: bool, aggressiveness: f64| {
+            let config = InsertionConfig {
+                ego_style_from_aggressiveness: style,
+                aggressiveness: Some(aggressiveness),
+                ..InsertionConfig::default()
+            };
+            let setup = InsertionSetup::new(Arc::clone(&map), config).expect("setup");
+            let mut env = RoundaboutInsertion::new(setup);
+            env.set_traffic(TrafficLevel::Low);
+            env.set_rendering(false);
+            let target = env.reset(3).scalars[1];
+            while env.step(Action::Permitted as usize).outcome.is_none() {}
+            (target, env.summary(), env.trajectory().to_vec())
+        };
+        let (passive_target, passive, passive_path) = episode(true, 0.0);
+        let (aggressive_target, aggressive, _) = episode(true, 1.0);
+        let ratio = aggressive_target / passive_target;
+        assert!(
+            (ratio - 1.15 / 0.85).abs() < 1e-3,
+            "target speeds {aggressive_target} and {passive_target}"
+        );
+        assert!(
+            aggressive.mean_speed_mps > passive.mean_speed_mps * 1.05,
+            "{aggressive:?} against {passive:?}"
+        );
+        let (_, plain_passive, plain_passive_path) = episode(false, 0.0);
+        let (_, plain_aggressive, plain_aggressive_path) = episode(false, 1.0);
+        assert_eq!(plain_passive_path, plain_aggressive_path);
+        assert_eq!(plain_passive.steps, plain_aggressive.steps);
+        assert_ne!(plain_passive_path, passive_path);
     }
 }

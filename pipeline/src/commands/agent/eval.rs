@@ -425,7 +425,7 @@ fn episodes_csv(
     conditions: &[Condition],
 ) -> String {
     let mut csv = String::from(
-        "policy,traffic,aggressiveness,episode,outcome,steps,return,mean_speed_mps,time_to_enter_s\n",
+        "policy,traffic,aggressiveness,episode,outcome,steps,return,mean_speed_mps,time_to_enter_s,close_following_steps,cut_in_steps,entry_lag_s\n",
     );
     for (policy, per_condition) in episodes_of {
         for (condition, episodes) in conditions.iter().zip(per_condition) {
@@ -434,13 +434,16 @@ fn episodes_csv(
                 let enter = e
                     .time_to_enter_s
                     .map_or(String::new(), |t| format!("{t:.1}"));
+                let lag = e.entry_lag_s.map_or(String::new(), |t| format!("{t:.2}"));
                 csv.push_str(&format!(
-                    "{policy},{},{},{k},{outcome},{},{:.4},{:.3},{enter}\n",
+                    "{policy},{},{},{k},{outcome},{},{:.4},{:.3},{enter},{},{},{lag}\n",
                     condition.traffic.name(),
                     condition.aggressiveness,
                     e.steps,
                     e.episode_return,
                     e.mean_speed_mps,
+                    e.close_following_steps,
+                    e.cut_in_steps,
                 ));
             }
         }

@@ -125,14 +125,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         )
         .into());
     }
-    let views = Views::new(
-        &map,
-        map_path,
-        task_config.observation.clone(),
-        task_config.frame_spacing(),
-        task_config.speed_scale_mps,
-        args.target_speed,
-    )?;
+    let views = Views::new(&map, map_path, task_config.clone(), args.target_speed)?;
 
     // The drivers' approaches as episodes.
     let labels = ctx.config.logs.decisions.clone();
