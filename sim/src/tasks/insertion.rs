@@ -382,7 +382,7 @@ pub struct EpisodeSummary {
 }
 
 /// The danger the reward penalises, in one world step.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy)]
 struct Danger {
     close_following: bool,
     cut_in: bool,
@@ -414,9 +414,6 @@ pub struct RoundaboutInsertion {
     /// The ego's following model: IDM with the parameters of a driver of aggressiveness 0.5,
     /// or of the ego's own with [`InsertionConfig::ego_style_from_aggressiveness`].
     follower: Driver,
-    /// The ego's target speed over its route's nominal speed (1 unless the ego's style
-    /// follows its aggressiveness).
-    speed_factor: f64,
 }
 
 impl RoundaboutInsertion {
@@ -446,7 +443,6 @@ impl RoundaboutInsertion {
             trajectory: Vec::new(),
             view,
             follower,
-            speed_factor: 1.0,
         }
     }
 
@@ -562,25 +558,23 @@ impl RoundaboutInsertion {
         Some((w, w.ego_index()?))
     }
 
-    /// The ego's following model and target-speed factor for this episode's aggressiveness.
-    fn ego_style(&self) -> (Driver, f64) {
+    /// The ego's following model for this episode's aggressiveness.
+    fn ego_follower(&self) -> Driver {
         let c = &self.config;
         let style = if c.ego_style_from_aggressiveness {
             self.aggressiveness
         } else {
             0.5
         };
-        (
-            Driver::new(&c.traffic.drivers, style),
-            c.ego_speed_factor(self.aggressiveness),
-        )
+        Driver::new(&c.traffic.drivers, style)
     }
 
     /// The speed the ego aims for under Permitted: its route's nominal speed (limit and
     /// curves) at its front, times its style's speed factor.
     fn target_speed(&self, world: &World, ego: usize) -> f64 {
         let me = &world.vehicles()[ego];
-        (world.route(me).path.speed_at(me.s + me.length / 2.0) * self.speed_factor).max(0.5)
+        let nominal = world.route(me).path.speed_at(me.s + me.length / 2.0);
+        (nominal * self.config.ego_speed_factor(self.aggressiveness)).max(0.5)
     }
 
     /// The ego's acceleration under `action`.
@@ -753,7 +747,7 @@ impl Env for RoundaboutInsertion {
         let layout = Arc::clone(self.setup.roundabouts.layout(self.roundabout));
         let drawn_aggressiveness: f64 = rng.random();
         self.aggressiveness = self.config.aggressiveness.unwrap_or(drawn_aggressiveness);
-        (self.follower, self.speed_factor) = self.ego_style();
+        self.follower = self.ego_follower();
         let speed_draw: f64 = rng.random();
         let world_seed: u64 = rng.random();
         let mut world = World::new(
@@ -767,7 +761,8 @@ impl Env for RoundaboutInsertion {
         let s0 = (route.yield_s - self.config.start_distance_m - self.config.ego.length_m / 2.0)
             .max(self.config.ego.length_m / 2.0);
         let (lo, hi) = self.config.start_speed_fraction;
-        let target = route.path.speed_at(s0 + self.config.ego.length_m / 2.0) * self.speed_factor;
+        let target = route.path.speed_at(s0 + self.config.ego.length_m / 2.0)
+            * self.config.ego_speed_factor(self.aggressiveness);
         let speed = target * (lo + (hi - lo) * speed_draw);
         world.insert_ego(self.route, s0, speed, 8.0);
         self.goal_s = (route.exit_s + self.config.goal_past_exit_m).min(route.path.length() - 0.1);
@@ -1033,9 +1028,10 @@ mod tests {
         };
         let (passive_target, passive, passive_path) = episode(true, 0.0);
         let (aggressive_target, aggressive, _) = episode(true, 1.0);
-        let ratio = aggressive_target / passive_target;
+        let ratio = f64::from(aggressive_target / passive_target);
+        let span = InsertionConfig::default().traffic.drivers.speed_factor;
         assert!(
-            (ratio - 1.15 / 0.85).abs() < 1e-3,
+            (ratio - span.aggressive / span.passive).abs() < 1e-3,
             "target speeds {aggressive_target} and {passive_target}"
         );
         assert!(
