@@ -840,23 +840,30 @@ impl World {
 
     /// The gap vehicle `i` has in front of the circulating traffic at its merge point: the
     /// least time a committed vehicle within the horizon needs for its front to reach that
-    /// point (at its speed, but at least 2 m/s as gap acceptance assumes), 0 while one
-    /// straddles it; None when none is coming. Read as the ego enters, it is the gap the
-    /// ego accepted.
+    /// point ([`World::merge_lags_s`]), 0 while one straddles it; None when none is coming.
+    /// Read as the ego enters, it is the gap the ego accepted.
     pub fn merge_lag_s(&self, i: usize) -> Option<f64> {
+        self.merge_lags_s(i)
+            .map(|(_, lag)| lag)
+            .min_by(f64::total_cmp)
+    }
+
+    /// Every committed vehicle within the horizon still coming to vehicle `i`'s merge point,
+    /// with the time its front needs to reach that point (at its speed, but at least 2 m/s
+    /// as gap acceptance assumes; 0 while it straddles the point), by index.
+    pub fn merge_lags_s(&self, i: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
         let merge_lane = self.layout.routes[self.vehicles[i].route].merge_lane;
         self.vehicles
             .iter()
             .enumerate()
-            .filter(|&(j, o)| j != i && o.committed)
-            .filter_map(|(_, o)| {
+            .filter(move |&(j, o)| j != i && o.committed)
+            .filter_map(move |(j, o)| {
                 let d = self.to_lane_start(o, merge_lane)?;
                 if d >= self.config.horizon_m || d <= -o.length {
                     return None; // far away, or past the merge point
                 }
-                Some((d - o.length / 2.0).max(0.0) / o.speed.max(2.0))
+                Some((j, (d - o.length / 2.0).max(0.0) / o.speed.max(2.0)))
             })
-            .min_by(f64::total_cmp)
     }
 
     /// Acceleration from a vehicle's driver model: IDM behind its leader, and behind its

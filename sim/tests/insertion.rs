@@ -169,6 +169,52 @@ fn baselines_show_what_the_task_asks() {
     assert_eq!(stop.tight_entry_share, 0.0);
 }
 
+/// With `cut_in_only_cut_off`, the cut-in term counts only the cars the ego entered in
+/// front of: the episodes do not change, no episode counts more cut-in steps than without,
+/// and the 25 m rule, which waits for long gaps, loses most of its cut-in steps and now
+/// counts fewer than always Permitted (without, it counts more: 1,432 against 1,282 here).
+#[test]
+fn cut_in_counts_only_the_cars_cut_off_when_asked() {
+    let map = montlake();
+    let conditions = [Condition {
+        traffic: TrafficLevel::Medium,
+        aggressiveness: 0.5,
+    }];
+    let options = EvalOptions {
+        episodes: 100,
+        seed: 3,
+        lockstep: 8,
+    };
+    let episodes = |only_cut_off: bool, baseline: Baseline| {
+        let mut config = InsertionConfig::default();
+        config.reward.cut_in_only_cut_off = only_cut_off;
+        let setup = InsertionSetup::new(Arc::clone(&map), config).unwrap();
+        evaluate_episodes(&setup, || baseline, &conditions, &options, &|_| {}).remove(0)
+    };
+    let total = |e: &[sim::tasks::EpisodeSummary]| e.iter().map(|e| e.cut_in_steps).sum::<usize>();
+    let mut totals = Vec::new(); // (any, cut off) for the rule, then for always Permitted
+    for baseline in [
+        Baseline::Rule { threshold_m: 25.0 },
+        Baseline::AlwaysPermitted,
+    ] {
+        let (any, cut_off) = (episodes(false, baseline), episodes(true, baseline));
+        for (a, c) in any.iter().zip(&cut_off) {
+            assert_eq!((a.outcome, a.steps), (c.outcome, c.steps));
+            assert!(c.cut_in_steps <= a.cut_in_steps);
+        }
+        totals.push((total(&any), total(&cut_off)));
+    }
+    let [(rule_any, rule_cut_off), (_, go_cut_off)] = totals[..] else {
+        unreachable!()
+    };
+    assert!(
+        rule_cut_off < go_cut_off && 2 * rule_cut_off < rule_any,
+        "cut-in steps (any car, cars cut off): rule 25 m {:?}, always Permitted {:?}",
+        totals[0],
+        totals[1]
+    );
+}
+
 /// With `rule_inputs`, the scalar inputs end with what the rule-based baselines see, the
 /// observation shape says so, and the episode itself does not change (same rewards and
 /// outcomes as without).

@@ -62,6 +62,13 @@ pub struct RewardConfig {
     /// would reach the ego within `cut_in_s` of its travel.
     pub cut_in_penalty: f64,
     pub cut_in_s: f64,
+    /// Counts in the cut-in term only the circulating vehicles the ego cut in front of:
+    /// those less than `cut_in_s` from its merge point as it entered
+    /// ([`World::merge_lags_s`]). Off (the default), any circulating vehicle counts that
+    /// comes within `cut_in_s` behind the ego while it is in the ring, also one that caught
+    /// up with a slow ego later, which no choice of gap avoids: the 25 m rule, which waits
+    /// for the longest gaps, spends as many steps so as always Permitted (docs/agents.md).
+    pub cut_in_only_cut_off: bool,
     pub reach: f64,
     /// Crash (and off-road): −(crash_base + crash_sigma · σ).
     pub crash_base: f64,
@@ -81,6 +88,7 @@ impl Default for RewardConfig {
             headway_s: 1.0,
             cut_in_penalty: 0.005,
             cut_in_s: 3.0,
+            cut_in_only_cut_off: false,
             reach: 1.0,
             crash_base: 0.2,
             crash_sigma: 1.8,
@@ -406,6 +414,8 @@ pub struct RoundaboutInsertion {
     speed_sum: f64,
     entered_at_s: Option<f64>,
     entry_lag_s: Option<f64>,
+    /// The ids of the circulating vehicles the ego entered less than `cut_in_s` in front of.
+    cut_off: Vec<u32>,
     close_following_steps: usize,
     cut_in_steps: usize,
     outcome: Option<Outcome>,
@@ -437,6 +447,7 @@ impl RoundaboutInsertion {
             speed_sum: 0.0,
             entered_at_s: None,
             entry_lag_s: None,
+            cut_off: Vec::new(),
             close_following_steps: 0,
             cut_in_steps: 0,
             outcome: None,
@@ -712,12 +723,17 @@ impl RoundaboutInsertion {
     }
 
     /// Whether a circulating vehicle has the ego as the vehicle ahead of it and would
-    /// reach it within `cut_in_s` at its speed.
+    /// reach it within `cut_in_s` at its speed (with `cut_in_only_cut_off`, one the ego
+    /// entered in front of).
     fn cut_in(&self, world: &World, ego: usize) -> bool {
-        let limit = self.config.reward.cut_in_s;
+        let r = &self.config.reward;
+        let limit = r.cut_in_s;
         (0..world.vehicles().len()).any(|j| {
             let v = &world.vehicles()[j];
-            if v.is_ego() || !v.committed {
+            if v.is_ego()
+                || !v.committed
+                || (r.cut_in_only_cut_off && !self.cut_off.contains(&v.id))
+            {
                 return false;
             }
             [world.leader(j), world.merging_leader(j)]
@@ -778,6 +794,7 @@ impl Env for RoundaboutInsertion {
         self.speed_sum = 0.0;
         self.entered_at_s = None;
         self.entry_lag_s = None;
+        self.cut_off.clear();
         self.close_following_steps = 0;
         self.cut_in_steps = 0;
         self.outcome = None;
@@ -855,6 +872,12 @@ impl RoundaboutInsertion {
         if committed && self.entered_at_s.is_none() {
             self.entered_at_s = Some(elapsed);
             self.entry_lag_s = world.merge_lag_s(ego);
+            let limit = self.config.reward.cut_in_s;
+            self.cut_off = world
+                .merge_lags_s(ego)
+                .filter(|&(_, lag)| lag < limit)
+                .map(|(j, _)| world.vehicles()[j].id)
+                .collect();
         }
         let danger = self.danger(world, ego);
         self.close_following_steps += usize::from(danger.close_following);
