@@ -67,7 +67,7 @@ pub struct RewardConfig {
     /// ([`World::merge_lags_s`]). Off (the default), any circulating vehicle counts that
     /// comes within `cut_in_s` behind the ego while it is in the ring, also one that caught
     /// up with a slow ego later, which no choice of gap avoids: the 25 m rule, which waits
-    /// for the longest gaps, spends as many steps so as always Permitted (docs/agents.md).
+    /// for the longest gaps, collects as many cut-in steps as always Permitted (docs/agents.md).
     pub cut_in_only_cut_off: bool,
     pub reach: f64,
     /// Crash (and off-road): −(crash_base + crash_sigma · σ).
