@@ -69,6 +69,11 @@ pub struct RewardConfig {
     /// up with a slow ego later, which no choice of gap avoids: the 25 m rule, which waits
     /// for the longest gaps, collects as many cut-in steps as always Permitted (docs/agents.md).
     pub cut_in_only_cut_off: bool,
+    /// The danger terms (`headway_penalty`, `cut_in_penalty`) scale with σ to this power:
+    /// 1 (the paper's, the default) makes them fall linearly with aggressiveness; 2 keeps
+    /// the full term at aggressiveness 0 and a quarter of it at 0.5, so a strong term can
+    /// make a cautious driver wait without making the middle one wait as long.
+    pub danger_sigma_power: f64,
     pub reach: f64,
     /// Crash (and off-road): −(crash_base + crash_sigma · σ).
     pub crash_base: f64,
@@ -89,6 +94,7 @@ impl Default for RewardConfig {
             cut_in_penalty: 0.005,
             cut_in_s: 3.0,
             cut_in_only_cut_off: false,
+            danger_sigma_power: 1.0,
             reach: 1.0,
             crash_base: 0.2,
             crash_sigma: 1.8,
@@ -321,6 +327,7 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
         ("speed_scale_mps", c.speed_scale_mps),
         ("comfort_accel_mps2", c.comfort_accel_mps2),
         ("comfort_decel_mps2", c.comfort_decel_mps2),
+        ("reward.danger_sigma_power", c.reward.danger_sigma_power),
     ];
     for (name, v) in positive {
         if !(v.is_finite() && v > 0.0) {
@@ -689,7 +696,7 @@ impl RoundaboutInsertion {
     fn step_reward(&self, world: &World, ego: usize, action: Action, danger: Danger) -> f64 {
         let r = &self.config.reward;
         let me = &world.vehicles()[ego];
-        let sigma = 1.0 - self.aggressiveness;
+        let danger_scale = (1.0 - self.aggressiveness).powf(r.danger_sigma_power);
         let mut reward = r.speed * me.speed / self.target_speed(world, ego);
         if self.last_action == Action::Permitted {
             reward -= match action {
@@ -699,10 +706,10 @@ impl RoundaboutInsertion {
             };
         }
         if danger.close_following {
-            reward -= r.headway_penalty * sigma;
+            reward -= r.headway_penalty * danger_scale;
         }
         if danger.cut_in {
-            reward -= r.cut_in_penalty * sigma;
+            reward -= r.cut_in_penalty * danger_scale;
         }
         reward
     }
@@ -1027,6 +1034,49 @@ mod tests {
                 }
             );
         }
+    }
+
+    /// The danger terms fall with σ to `danger_sigma_power`: at aggressiveness 0.5 a cut-in
+    /// step costs half the term with the paper's power 1 and a quarter of it with power 2,
+    /// and the other reward terms do not change.
+    #[test]
+    fn the_danger_terms_scale_with_sigma_to_the_configured_power() {
+        let map = Arc::new(crate::test_maps::montlake());
+        let cut_in_cost = |power: f64| {
+            let mut config = InsertionConfig {
+                aggressiveness: Some(0.5),
+                ..InsertionConfig::default()
+            };
+            config.reward.cut_in_penalty = 0.08;
+            config.reward.danger_sigma_power = power;
+            let setup = InsertionSetup::new(Arc::clone(&map), config).expect("setup");
+            let mut env = RoundaboutInsertion::new(setup);
+            env.set_rendering(false);
+            env.reset(5);
+            let world = env.world.as_ref().expect("a world after reset");
+            let ego = world.ego_index().expect("the ego");
+            let reward = |cut_in| {
+                let danger = Danger {
+                    close_following: false,
+                    cut_in,
+                };
+                env.step_reward(world, ego, env.last_action, danger)
+            };
+            reward(false) - reward(true)
+        };
+        assert!(
+            (cut_in_cost(1.0) - 0.04).abs() < 1e-12,
+            "{}",
+            cut_in_cost(1.0)
+        );
+        assert!(
+            (cut_in_cost(2.0) - 0.02).abs() < 1e-12,
+            "{}",
+            cut_in_cost(2.0)
+        );
+        let mut config = InsertionConfig::default();
+        config.reward.danger_sigma_power = 0.0;
+        assert!(InsertionSetup::new(Arc::clone(&map), config).is_err());
     }
 
     /// With `ego_style_from_aggressiveness`, an aggressive ego aims faster and drives a
