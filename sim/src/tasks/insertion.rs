@@ -74,6 +74,13 @@ pub struct RewardConfig {
     /// the full term at aggressiveness 0 and a quarter of it at 0.5, so a strong term can
     /// make a cautious driver wait without making the middle one wait as long.
     pub danger_sigma_power: f64,
+    /// Once, as the ego enters in front of a circulating car less than `short_entry_s` from
+    /// its merge point: −short_entry_penalty · (1 − lag / short_entry_s), times σ to
+    /// `danger_sigma_power`. Unlike the cut-in term, which costs the same per step for any
+    /// lag under `cut_in_s`, it grows as the gap taken shrinks: the agents' crashes follow
+    /// entries under a second (docs/agents.md). 0 (the default) leaves it out.
+    pub short_entry_penalty: f64,
+    pub short_entry_s: f64,
     pub reach: f64,
     /// Crash (and off-road): −(crash_base + crash_sigma · σ).
     pub crash_base: f64,
@@ -95,6 +102,8 @@ impl Default for RewardConfig {
             cut_in_s: 3.0,
             cut_in_only_cut_off: false,
             danger_sigma_power: 1.0,
+            short_entry_penalty: 0.0,
+            short_entry_s: 1.5,
             reach: 1.0,
             crash_base: 0.2,
             crash_sigma: 1.8,
@@ -328,6 +337,7 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
         ("comfort_accel_mps2", c.comfort_accel_mps2),
         ("comfort_decel_mps2", c.comfort_decel_mps2),
         ("reward.danger_sigma_power", c.reward.danger_sigma_power),
+        ("reward.short_entry_s", c.reward.short_entry_s),
     ];
     for (name, v) in positive {
         if !(v.is_finite() && v > 0.0) {
@@ -692,11 +702,27 @@ impl RoundaboutInsertion {
         );
     }
 
+    /// What the danger terms are multiplied by: σ to `danger_sigma_power`.
+    fn danger_scale(&self) -> f64 {
+        (1.0 - self.aggressiveness).powf(self.config.reward.danger_sigma_power)
+    }
+
+    /// The one-time cost of the entry just made, from its lag (`short_entry_penalty`).
+    fn short_entry_cost(&self) -> f64 {
+        let r = &self.config.reward;
+        match self.entry_lag_s {
+            Some(lag) if r.short_entry_penalty != 0.0 && lag < r.short_entry_s => {
+                r.short_entry_penalty * (1.0 - lag / r.short_entry_s) * self.danger_scale()
+            }
+            _ => 0.0,
+        }
+    }
+
     /// Reward terms that apply every step: speed, indecision, and r_danger for `danger`.
     fn step_reward(&self, world: &World, ego: usize, action: Action, danger: Danger) -> f64 {
         let r = &self.config.reward;
         let me = &world.vehicles()[ego];
-        let danger_scale = (1.0 - self.aggressiveness).powf(r.danger_sigma_power);
+        let danger_scale = self.danger_scale();
         let mut reward = r.speed * me.speed / self.target_speed(world, ego);
         if self.last_action == Action::Permitted {
             reward -= match action {
@@ -876,7 +902,8 @@ impl RoundaboutInsertion {
         self.speed_sum += speed;
         self.trajectory.push(position);
         let elapsed = world.time_s() - self.start_time_s;
-        if committed && self.entered_at_s.is_none() {
+        let just_entered = committed && self.entered_at_s.is_none();
+        if just_entered {
             self.entered_at_s = Some(elapsed);
             self.entry_lag_s = world.merge_lag_s(ego);
             let limit = self.config.reward.cut_in_s;
@@ -890,6 +917,9 @@ impl RoundaboutInsertion {
         self.close_following_steps += usize::from(danger.close_following);
         self.cut_in_steps += usize::from(danger.cut_in);
         let mut reward = self.step_reward(world, ego, action, danger);
+        if just_entered {
+            reward -= self.short_entry_cost();
+        }
         let r = self.config.reward;
         let sigma = 1.0 - self.aggressiveness;
         let raster = self.setup.roundabouts.renderer(self.roundabout).raster();
@@ -1077,6 +1107,55 @@ mod tests {
         let mut config = InsertionConfig::default();
         config.reward.danger_sigma_power = 0.0;
         assert!(InsertionSetup::new(Arc::clone(&map), config).is_err());
+    }
+
+    /// The short-entry term is charged once, at the entry, and grows as the lag taken
+    /// shrinks: always-Permitted episodes with and without it drive the same and their
+    /// returns differ by exactly penalty · (1 − lag / short_entry_s) · σ for the episodes
+    /// that entered less than `short_entry_s` in front of a car, and not at all otherwise.
+    #[test]
+    fn a_short_entry_costs_once_and_more_the_shorter_the_lag() {
+        let map = Arc::new(crate::test_maps::montlake());
+        let episode = |penalty: f64, seed: u64| {
+            let mut config = InsertionConfig {
+                aggressiveness: Some(0.5),
+                ..InsertionConfig::default()
+            };
+            config.reward.short_entry_penalty = penalty;
+            config.reward.short_entry_s = 2.0;
+            let setup = InsertionSetup::new(Arc::clone(&map), config).expect("setup");
+            let mut env = RoundaboutInsertion::new(setup);
+            env.set_traffic(TrafficLevel::High);
+            env.set_rendering(false);
+            env.reset(seed);
+            while env.step(Action::Permitted as usize).outcome.is_none() {}
+            env.summary()
+        };
+        let (mut short, mut long) = (0, 0);
+        for seed in 0..40 {
+            let (without, with) = (episode(0.0, seed), episode(0.6, seed));
+            assert_eq!(without.steps, with.steps);
+            assert_eq!(without.entry_lag_s, with.entry_lag_s);
+            let charged = without.episode_return - with.episode_return;
+            let want = match with.entry_lag_s {
+                Some(lag) if lag < 2.0 => {
+                    short += 1;
+                    0.6 * (1.0 - lag / 2.0) * 0.5
+                }
+                _ => {
+                    long += 1;
+                    0.0
+                }
+            };
+            assert!(
+                (charged - want).abs() < 1e-9,
+                "seed {seed}: {charged} against {want}"
+            );
+        }
+        assert!(
+            short > 0 && long > 0,
+            "{short} short entries, {long} others"
+        );
     }
 
     /// With `ego_style_from_aggressiveness`, an aggressive ego aims faster and drives a
