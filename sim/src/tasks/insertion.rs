@@ -711,7 +711,7 @@ impl RoundaboutInsertion {
     fn short_entry_cost(&self) -> f64 {
         let r = &self.config.reward;
         match self.entry_lag_s {
-            Some(lag) if r.short_entry_penalty != 0.0 && lag < r.short_entry_s => {
+            Some(lag) if lag < r.short_entry_s => {
                 r.short_entry_penalty * (1.0 - lag / r.short_entry_s) * self.danger_scale()
             }
             _ => 0.0,
