@@ -78,6 +78,9 @@ impl GenerateConfig {
                 self.draw_distance_m
             )));
         }
+        if let Some(p) = self.traffic.problem() {
+            return Err(GenerateError::Config(p));
+        }
         if let Some(t) = &self.topdown
             && (t.size_px == 0
                 || t.size_px > 8192

@@ -40,6 +40,27 @@ impl Default for TrafficConfig {
     }
 }
 
+impl TrafficConfig {
+    /// Why the config cannot be used, if it cannot.
+    pub fn problem(&self) -> Option<String> {
+        let share = |name: &str, v: f64| {
+            (!(0.0..=1.0).contains(&v)).then(|| format!("{name} {v} must be within 0 and 1"))
+        };
+        if self.vehicles.0 > self.vehicles.1 || self.pedestrians.0 > self.pedestrians.1 {
+            return Some(format!(
+                "road user ranges must run from least to most: vehicles {}-{}, pedestrians {}-{}",
+                self.vehicles.0, self.vehicles.1, self.pedestrians.0, self.pedestrians.1
+            ));
+        }
+        share("lead vehicle share", self.lead_vehicle_share)
+            .or_else(|| share("crossing share", self.crossing_share))
+            .or_else(|| {
+                (!(self.range_m > 0.0 && self.range_m.is_finite()))
+                    .then(|| format!("road user range {} m must be positive", self.range_m))
+            })
+    }
+}
+
 /// Where the ego car is: on `lane`, `s_m` from its start, jittered sideways.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct EgoPose {

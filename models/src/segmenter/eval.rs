@@ -7,7 +7,7 @@ use image::GrayImage;
 
 use super::data::{Sample, Source};
 use super::error::Result;
-use super::infer::{credit_unlabelable, predict_label};
+use super::infer::{Inference, credit_unlabelable, predict_label};
 use super::metrics::ConfusionMatrix;
 use super::model::{PspNet, PspNetConfig};
 
@@ -38,13 +38,13 @@ pub struct Prediction {
     pub prediction: GrayImage,
 }
 
-/// Evaluates `model` on the items of `sources` (at most `limit` per source), predicting at
-/// short side `short`. `on_item(done, total, &prediction)` is called after each image.
+/// Evaluates `model` on the items of `sources` (at most `limit` per source), each predicted
+/// as `inference` says. `on_item(done, total, &prediction)` is called after each image.
 pub fn evaluate(
     model: &PspNet,
     config: &PspNetConfig,
     sources: &[Source],
-    short: Option<u32>,
+    inference: Inference,
     limit: Option<usize>,
     device: &Device,
     mut on_item: impl FnMut(usize, usize, &Prediction),
@@ -61,7 +61,8 @@ pub fn evaluate(
         let count = limit.map_or(source.items.len(), |l| l.min(source.items.len()));
         for &item in &source.items[..count] {
             let sample = source.load(item)?;
-            let mut pixels = predict_label(model, config, &sample.image, short, device).into_raw();
+            let mut pixels =
+                predict_label(model, config, &sample.image, inference, device).into_raw();
             credit_unlabelable(sample.label.as_raw(), &mut pixels, &source.unlabelable);
             matrix.add(sample.label.as_raw(), &pixels);
             let (w, h) = sample.label.dimensions();

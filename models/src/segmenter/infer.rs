@@ -1,6 +1,7 @@
 //! Inference on images: normalisation, prediction at the original resolution, and the
 //! evaluation rule for classes a source cannot label.
 
+use burn::tensor::activation::softmax;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use image::{GrayImage, RgbImage, imageops};
 
@@ -37,26 +38,50 @@ pub fn argmax_labels(logits: Tensor<4>) -> Vec<Vec<u8>> {
     flat.chunks(h * w).take(b).map(<[u8]>::to_vec).collect()
 }
 
-/// Predicts the label of one image: resized so its short side is `short` (None: as it is),
-/// run through the network, logits resized back to the image's size, argmax.
+/// How a trained network is run on an image.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Inference {
+    /// The image is resized so its short side is this many pixels (None: as it is).
+    pub short: Option<u32>,
+    /// Test-time flip: the class probabilities of the image and of its mirror image (mirrored
+    /// back) are averaged. Twice the work; the scene's left and right are equally likely in
+    /// the data, so the two predictions err differently on thin and small objects.
+    pub flip: bool,
+}
+
+/// Predicts the label of one image: resized as `inference` says, run through the network,
+/// class scores resized back to the image's size, argmax.
 pub fn predict_label(
     model: &PspNet,
     config: &PspNetConfig,
     image: &RgbImage,
-    short: Option<u32>,
+    inference: Inference,
     device: &Device,
 ) -> GrayImage {
     let (w, h) = image.dimensions();
-    let input = match short {
+    let input = match inference.short {
         Some(s) if scaled_size(w, h, s) != (w, h) => {
             let (nw, nh) = scaled_size(w, h, s);
             imageops::resize(image, nw, nh, imageops::FilterType::Triangle)
         }
         _ => image.clone(),
     };
-    let logits = model.forward(normalise(&[&input], config, device));
-    let logits = resize(logits, [h as usize, w as usize], config.align_corners);
-    let pixels = argmax_labels(logits).pop().unwrap_or_default();
+    let x = normalise(&[&input], config, device);
+    let scores = if inference.flip {
+        // One batch of two: the image and its mirror; the mirror's probabilities are
+        // mirrored back before the average. [2, classes, H, W] -> [1, classes, H, W].
+        let probabilities = softmax(
+            model.forward(Tensor::cat(vec![x.clone(), x.flip([3])], 0)),
+            1,
+        );
+        let direct = probabilities.clone().narrow(0, 0, 1);
+        let mirrored = probabilities.narrow(0, 1, 1).flip([3]);
+        (direct + mirrored) / 2.0
+    } else {
+        model.forward(x)
+    };
+    let scores = resize(scores, [h as usize, w as usize], config.align_corners);
+    let pixels = argmax_labels(scores).pop().unwrap_or_default();
     GrayImage::from_raw(w, h, pixels).unwrap_or_else(|| GrayImage::new(w, h))
 }
 
@@ -90,6 +115,39 @@ mod tests {
         assert_eq!(t.dims(), [1, 3, 1, 2]);
         let v = t.into_data().try_to_vec::<f32>().unwrap_or_default();
         assert_eq!(v, vec![0.0, 1.0, 0.0, 2.0, 0.0, 2.0]);
+    }
+
+    #[test]
+    fn a_flipped_prediction_of_a_mirror_image_is_the_mirror_of_the_flipped_prediction() {
+        // Untrained networks are not mirror-symmetric, so a plain prediction is not
+        // equivariant; averaging with the mirror image makes it so (up to ties).
+        let device = Device::flex();
+        let config = PspNetConfig::new()
+            .with_width(0.125)
+            .with_blocks(vec![1, 1, 1, 1])
+            .with_psp_channels(16)
+            .with_skip_channels(8);
+        let model = config
+            .init_seeded(&device, 3)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let image = RgbImage::from_fn(40, 24, |x, y| {
+            image::Rgb([(x * 6) as u8, (y * 10) as u8, ((x * y) % 251) as u8])
+        });
+        let mirror = imageops::flip_horizontal(&image);
+        let predict = |image: &RgbImage, flip: bool| {
+            let inference = Inference { short: None, flip };
+            predict_label(&model, &config, image, inference, &device)
+        };
+        let plain = imageops::flip_horizontal(&predict(&mirror, false));
+        assert_ne!(
+            plain,
+            predict(&image, false),
+            "the test needs an asymmetric network"
+        );
+        assert_eq!(
+            imageops::flip_horizontal(&predict(&mirror, true)),
+            predict(&image, true)
+        );
     }
 
     #[test]

@@ -40,7 +40,7 @@ use super::data::{Augment, Sample, Source, check_sources, epoch_draws, load_batc
 use super::error::{Result, SegmenterError};
 use super::eval::{Prediction, class_names, evaluate};
 use super::files::{load_record, save_model, save_record, write_atomic};
-use super::infer::normalise;
+use super::infer::{Inference, normalise};
 use super::loss::{LabelRef, LossTargets, dice_loss, segmentation_loss};
 use super::metrics::MetricsSummary;
 use super::model::{PspNet, PspNetConfig};
@@ -432,7 +432,10 @@ pub fn train(
             &valid,
             &config.model,
             &data.val,
-            Some(config.size),
+            Inference {
+                short: Some(config.size),
+                flip: false,
+            },
             config.val_limit,
             &device.clone().inner(),
             |done, total, prediction| {

@@ -68,6 +68,15 @@ pub struct GenerateArgs {
     #[arg(long, value_name = "DEG")]
     pub fov: Option<f64>,
 
+    /// Pedestrians in a view, MIN-MAX (uniform, inclusive) [default: 0-10].
+    #[arg(long, value_name = "MIN-MAX")]
+    pub pedestrians: Option<String>,
+
+    /// Share of pedestrians that cross the road at an intersection when one is in view
+    /// [default: 0.3].
+    #[arg(long, value_name = "SHARE")]
+    pub crossing_share: Option<f64>,
+
     /// Also write the top-down label view of each scene (topdown/<id>.png, ego-centred).
     #[arg(long)]
     pub topdown: bool,
@@ -117,6 +126,13 @@ pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
     if let Some(v) = args.fov {
         config.camera.hfov_deg = v;
     }
+    if let Some(range) = &args.pedestrians {
+        config.traffic.pedestrians = parse_range(range)
+            .map_err(|m| CliError::new(format!("--pedestrians: {m}"), "e.g. --pedestrians 4-16"))?;
+    }
+    if let Some(v) = args.crossing_share {
+        config.traffic.crossing_share = v;
+    }
     if args.topdown {
         config.topdown = Some(TopdownConfig::default());
     }
@@ -128,6 +144,14 @@ pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
         )
     })?;
     Ok(config)
+}
+
+/// "4-16" to (4, 16).
+fn parse_range(s: &str) -> std::result::Result<(u32, u32), String> {
+    let bad = || format!("expected MIN-MAX such as 0-10, not `{s}`");
+    let (lo, hi) = s.split_once('-').ok_or_else(bad)?;
+    let parse = |v: &str| v.trim().parse::<u32>().map_err(|_| bad());
+    Ok((parse(lo)?, parse(hi)?))
 }
 
 /// Whether a path names an OSM file (by its extension) rather than a native map.
@@ -372,5 +396,20 @@ mod tests {
         assert!(is_osm_file(Path::new("x.OSM")));
         assert!(!is_osm_file(Path::new("runs/campus/map.bin")));
         assert!(!is_osm_file(Path::new("runs/campus")));
+    }
+
+    #[test]
+    fn pedestrian_ranges_parse_and_bad_traffic_is_refused() {
+        assert_eq!(parse_range("4-16"), Ok((4, 16)));
+        assert!(parse_range("4").is_err());
+        assert!(parse_range("-3-4").is_err());
+        let mut config = GenerateConfig::default();
+        config.traffic.pedestrians = (9, 3);
+        assert!(config.check().is_err());
+        config.traffic.pedestrians = (3, 9);
+        config.traffic.crossing_share = 1.5;
+        assert!(config.check().is_err());
+        config.traffic.crossing_share = 0.6;
+        assert!(config.check().is_ok());
     }
 }

@@ -13,8 +13,8 @@ use models::segmenter::{ConfusionMatrix, MetricsSummary};
 use serde::Serialize;
 
 use super::{
-    Context, ModelArgs, model_dir, open_model, open_sources, parse_source, segmenter_error,
-    short_side, with_threads,
+    Context, ModelArgs, inference, model_dir, open_model, open_sources, parse_source,
+    segmenter_error, with_threads,
 };
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 
@@ -63,6 +63,8 @@ pub struct EvalReport {
     pub datasets: Vec<PathBuf>,
     pub split: String,
     pub size: u32,
+    /// Test-time flip (`--flip`): each image's prediction averaged with its mirror image's.
+    pub flip: bool,
     pub images: usize,
     #[serde(flatten)]
     pub overall: MetricsSummary,
@@ -103,7 +105,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             &model,
             &config,
             &sources,
-            short_side(size),
+            inference(size, args.model.flip),
             args.limit,
             &device,
             |_, _, _| {},
@@ -157,6 +159,7 @@ fn eval_report(
         datasets: args.data.iter().map(|d| d.path.clone()).collect(),
         split,
         size,
+        flip: args.model.flip,
         images: e.images,
         overall: e.overall.summary(&names),
         per_dataset: e
@@ -176,7 +179,7 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
     let _ = writeln!(s, "# Segmenter evaluation\n");
     let _ = writeln!(
         s,
-        "Model `{}`, {} images of the `{}` split of {}, short side {} px.\n",
+        "Model `{}`, {} images of the `{}` split of {}, short side {} px{}.\n",
         r.model.display(),
         r.images,
         r.split,
@@ -185,7 +188,12 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
             .map(|d| format!("`{}`", d.display()))
             .collect::<Vec<_>>()
             .join(", "),
-        r.size
+        r.size,
+        if r.flip {
+            ", each averaged with its mirror image (--flip)"
+        } else {
+            ""
+        }
     );
     let _ = writeln!(s, "| figure | value |\n| --- | ---: |");
     for (name, v) in [

@@ -24,6 +24,7 @@ use burn::tensor::Device;
 use clap::{Args, Subcommand};
 use models::segmenter::data::{Source, SourceSpec, Split};
 use models::segmenter::files::{MODEL_CONFIG_FILE, load_model};
+use models::segmenter::infer::Inference;
 use models::segmenter::train::{BEST_DIR, DEFAULT_SHORT_SIDE, trained_short_side};
 use models::segmenter::{PspNet, PspNetConfig, SegmenterError};
 
@@ -63,6 +64,11 @@ pub struct ModelArgs {
     /// was trained at (its run folder's train.json), else 256].
     #[arg(long, value_name = "PX")]
     pub size: Option<u32>,
+
+    /// Test-time flip: average the class probabilities of each image and of its mirror
+    /// image (twice the inference time).
+    #[arg(long)]
+    pub flip: bool,
 }
 
 impl ModelArgs {
@@ -79,9 +85,12 @@ impl ModelArgs {
     }
 }
 
-/// The short side to resize to for a `--size`: `None` (0) keeps the images' own size.
-pub fn short_side(size: u32) -> Option<u32> {
-    (size > 0).then_some(size)
+/// How to run the model for a `--size` (0 keeps the images' own size) and `--flip`.
+pub fn inference(size: u32, flip: bool) -> Inference {
+    Inference {
+        short: (size > 0).then_some(size),
+        flip,
+    }
 }
 
 /// A model folder, or a run folder's best model.

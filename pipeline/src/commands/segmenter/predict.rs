@@ -8,7 +8,7 @@ use clap::Args;
 use datasets::image_io::{encode_label_png, encode_rgb_png, overlay_label, read_rgb};
 use models::segmenter::infer::predict_label;
 
-use super::{Context, ModelArgs, open_model, short_side, with_threads};
+use super::{Context, ModelArgs, inference, open_model, with_threads};
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 
@@ -76,7 +76,7 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
     let files = inputs(&args.input)?;
     let device = ctx.device()?;
     let (model, config) = open_model(&args.model.model, &device)?;
-    let short_side = short_side(args.model.size()?);
+    let inference = inference(args.model.size()?, args.model.flip);
     let dir = AtomicDir::create(&out_path, PREDICT_MARKERS)?;
     for sub in [LABELS_DIR, OVERLAYS_DIR] {
         std::fs::create_dir_all(dir.path().join(sub))?;
@@ -110,7 +110,7 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
             .into());
         }
         let label = with_threads(args.threads, || {
-            predict_label(&model, &config, &image, short_side, &device)
+            predict_label(&model, &config, &image, inference, &device)
         })?;
         let name = format!("{stem}.png");
         write_file_atomic(
