@@ -44,7 +44,7 @@ pub fn evaluate(
     model: &PspNet,
     config: &PspNetConfig,
     sources: &[Source],
-    inference: Inference,
+    inference: &Inference,
     limit: Option<usize>,
     device: &Device,
     mut on_item: impl FnMut(usize, usize, &Prediction),

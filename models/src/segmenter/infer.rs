@@ -39,14 +39,29 @@ pub fn argmax_labels(logits: Tensor<4>) -> Vec<Vec<u8>> {
 }
 
 /// How a trained network is run on an image.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Inference {
     /// The image is resized so its short side is this many pixels (None: as it is).
     pub short: Option<u32>,
+    /// Multi-scale test: the image is also run at these short sides, and the class
+    /// probabilities of every size, resized to the image's size, are averaged. Small
+    /// objects are more pixels at a larger size, large ones fit the pyramid pooling better
+    /// at a smaller one.
+    pub extra_shorts: Vec<u32>,
     /// Test-time flip: the class probabilities of the image and of its mirror image (mirrored
     /// back) are averaged. Twice the work; the scene's left and right are equally likely in
     /// the data, so the two predictions err differently on thin and small objects.
     pub flip: bool,
+}
+
+impl Inference {
+    /// One pass at `short`, no flip.
+    pub fn at(short: Option<u32>) -> Self {
+        Self {
+            short,
+            ..Self::default()
+        }
+    }
 }
 
 /// Predicts the label of one image: resized as `inference` says, run through the network,
@@ -55,19 +70,62 @@ pub fn predict_label(
     model: &PspNet,
     config: &PspNetConfig,
     image: &RgbImage,
-    inference: Inference,
+    inference: &Inference,
     device: &Device,
 ) -> GrayImage {
     let (w, h) = image.dimensions();
-    let input = match inference.short {
+    let shorts =
+        std::iter::once(inference.short).chain(inference.extra_shorts.iter().map(|&s| Some(s)));
+    // A single plain pass keeps the logits (the same argmax, without the softmax's cost);
+    // several passes are averaged as probabilities.
+    let averaged = inference.flip || !inference.extra_shorts.is_empty();
+    let mut sum: Option<Tensor<4>> = None;
+    for short in shorts {
+        let scores = scores_at(
+            model,
+            config,
+            image,
+            short,
+            inference.flip,
+            averaged,
+            device,
+        );
+        let scores = resize(scores, [h as usize, w as usize], config.align_corners);
+        sum = Some(match sum {
+            Some(total) => total + scores,
+            None => scores,
+        });
+    }
+    let pixels = sum
+        .and_then(|scores| argmax_labels(scores).pop())
+        .unwrap_or_default();
+    GrayImage::from_raw(w, h, pixels).unwrap_or_else(|| GrayImage::new(w, h))
+}
+
+/// `[1, classes, H', W']` scores of `image` resized to a short side of `short`: logits, or
+/// class probabilities when `probabilities` (always with `flip`, which averages the image's
+/// and its mirror's).
+fn scores_at(
+    model: &PspNet,
+    config: &PspNetConfig,
+    image: &RgbImage,
+    short: Option<u32>,
+    flip: bool,
+    probabilities: bool,
+    device: &Device,
+) -> Tensor<4> {
+    let (w, h) = image.dimensions();
+    let resized;
+    let input = match short {
         Some(s) if scaled_size(w, h, s) != (w, h) => {
             let (nw, nh) = scaled_size(w, h, s);
-            imageops::resize(image, nw, nh, imageops::FilterType::Triangle)
+            resized = imageops::resize(image, nw, nh, imageops::FilterType::Triangle);
+            &resized
         }
-        _ => image.clone(),
+        _ => image,
     };
-    let x = normalise(&[&input], config, device);
-    let scores = if inference.flip {
+    let x = normalise(&[input], config, device);
+    if flip {
         // One batch of two: the image and its mirror; the mirror's probabilities are
         // mirrored back before the average. [2, classes, H, W] -> [1, classes, H, W].
         let probabilities = softmax(
@@ -77,12 +135,11 @@ pub fn predict_label(
         let direct = probabilities.clone().narrow(0, 0, 1);
         let mirrored = probabilities.narrow(0, 1, 1).flip([3]);
         (direct + mirrored) / 2.0
+    } else if probabilities {
+        softmax(model.forward(x), 1)
     } else {
         model.forward(x)
-    };
-    let scores = resize(scores, [h as usize, w as usize], config.align_corners);
-    let pixels = argmax_labels(scores).pop().unwrap_or_default();
-    GrayImage::from_raw(w, h, pixels).unwrap_or_else(|| GrayImage::new(w, h))
+    }
 }
 
 /// The evaluation rule for a source that cannot label some classes (see [`super::loss`]):
@@ -135,8 +192,11 @@ mod tests {
         });
         let mirror = imageops::flip_horizontal(&image);
         let predict = |image: &RgbImage, flip: bool| {
-            let inference = Inference { short: None, flip };
-            predict_label(&model, &config, image, inference, &device)
+            let inference = Inference {
+                flip,
+                ..Inference::default()
+            };
+            predict_label(&model, &config, image, &inference, &device)
         };
         let plain = imageops::flip_horizontal(&predict(&mirror, false));
         assert_ne!(
@@ -148,6 +208,36 @@ mod tests {
             imageops::flip_horizontal(&predict(&mirror, true)),
             predict(&image, true)
         );
+    }
+
+    #[test]
+    fn extra_sizes_average_into_a_label_of_the_image_size() {
+        let device = Device::flex();
+        let config = PspNetConfig::new()
+            .with_width(0.125)
+            .with_blocks(vec![1, 1, 1, 1])
+            .with_psp_channels(16)
+            .with_skip_channels(8);
+        let model = config
+            .init_seeded(&device, 5)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let image = RgbImage::from_fn(40, 24, |x, y| {
+            image::Rgb([((x * y) % 251) as u8, (x * 6) as u8, (y * 10) as u8])
+        });
+        let predict = |extra_shorts: Vec<u32>| {
+            let inference = Inference {
+                extra_shorts,
+                ..Inference::default()
+            };
+            predict_label(&model, &config, &image, &inference, &device)
+        };
+        let single = predict(Vec::new());
+        // The image's own size again: the same probabilities twice, the same argmax.
+        assert_eq!(predict(vec![24]), single);
+        // Another size is resized back to the image's and changes some pixels.
+        let multi = predict(vec![48]);
+        assert_eq!(multi.dimensions(), (40, 24));
+        assert_ne!(multi, single);
     }
 
     #[test]

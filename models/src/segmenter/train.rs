@@ -432,10 +432,7 @@ pub fn train(
             &valid,
             &config.model,
             &data.val,
-            Inference {
-                short: Some(config.size),
-                flip: false,
-            },
+            &Inference::at(Some(config.size)),
             config.val_limit,
             &device.clone().inner(),
             |done, total, prediction| {

@@ -63,6 +63,8 @@ pub struct EvalReport {
     pub datasets: Vec<PathBuf>,
     pub split: String,
     pub size: u32,
+    /// Multi-scale test (`--extra-sizes`): further short sides averaged with `size`'s.
+    pub extra_sizes: Vec<u32>,
     /// Test-time flip (`--flip`): each image's prediction averaged with its mirror image's.
     pub flip: bool,
     pub images: usize,
@@ -105,7 +107,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             &model,
             &config,
             &sources,
-            inference(size, args.model.flip),
+            &inference(size, &args.model),
             args.limit,
             &device,
             |_, _, _| {},
@@ -159,6 +161,7 @@ fn eval_report(
         datasets: args.data.iter().map(|d| d.path.clone()).collect(),
         split,
         size,
+        extra_sizes: args.model.extra_sizes.clone(),
         flip: args.model.flip,
         images: e.images,
         overall: e.overall.summary(&names),
@@ -179,7 +182,7 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
     let _ = writeln!(s, "# Segmenter evaluation\n");
     let _ = writeln!(
         s,
-        "Model `{}`, {} images of the `{}` split of {}, short side {} px{}.\n",
+        "Model `{}`, {} images of the `{}` split of {}, short side {} px{}{}.\n",
         r.model.display(),
         r.images,
         r.split,
@@ -189,6 +192,12 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
             .collect::<Vec<_>>()
             .join(", "),
         r.size,
+        if r.extra_sizes.is_empty() {
+            String::new()
+        } else {
+            let sizes: Vec<String> = r.extra_sizes.iter().map(u32::to_string).collect();
+            format!(", averaged with {} px (--extra-sizes)", sizes.join(", "))
+        },
         if r.flip {
             ", each averaged with its mirror image (--flip)"
         } else {

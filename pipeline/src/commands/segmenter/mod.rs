@@ -65,6 +65,11 @@ pub struct ModelArgs {
     #[arg(long, value_name = "PX")]
     pub size: Option<u32>,
 
+    /// Multi-scale test: also run each image at these short sides (comma-separated) and
+    /// average the class probabilities of all sizes (one more pass per size).
+    #[arg(long, value_name = "PX,...", value_delimiter = ',', value_parser = clap::value_parser!(u32).range(16..=4096))]
+    pub extra_sizes: Vec<u32>,
+
     /// Test-time flip: average the class probabilities of each image and of its mirror
     /// image (twice the inference time).
     #[arg(long)]
@@ -85,11 +90,13 @@ impl ModelArgs {
     }
 }
 
-/// How to run the model for a `--size` (0 keeps the images' own size) and `--flip`.
-pub fn inference(size: u32, flip: bool) -> Inference {
+/// How to run the model for a `--size` (0 keeps the images' own size), `--extra-sizes`
+/// and `--flip`.
+pub fn inference(size: u32, args: &ModelArgs) -> Inference {
     Inference {
         short: (size > 0).then_some(size),
-        flip,
+        extra_shorts: args.extra_sizes.clone(),
+        flip: args.flip,
     }
 }
 

@@ -76,7 +76,7 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
     let files = inputs(&args.input)?;
     let device = ctx.device()?;
     let (model, config) = open_model(&args.model.model, &device)?;
-    let inference = inference(args.model.size()?, args.model.flip);
+    let inference = inference(args.model.size()?, &args.model);
     let dir = AtomicDir::create(&out_path, PREDICT_MARKERS)?;
     for sub in [LABELS_DIR, OVERLAYS_DIR] {
         std::fs::create_dir_all(dir.path().join(sub))?;
@@ -110,7 +110,7 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
             .into());
         }
         let label = with_threads(args.threads, || {
-            predict_label(&model, &config, &image, inference, &device)
+            predict_label(&model, &config, &image, &inference, &device)
         })?;
         let name = format!("{stem}.png");
         write_file_atomic(
