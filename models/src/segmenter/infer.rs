@@ -62,6 +62,12 @@ impl Inference {
             ..Self::default()
         }
     }
+
+    /// Whether several predictions are averaged (as class probabilities). A single plain
+    /// pass keeps the logits: the same argmax, without the softmax's cost.
+    fn averages(&self) -> bool {
+        self.flip || !self.extra_shorts.is_empty()
+    }
 }
 
 /// Predicts the label of one image: resized as `inference` says, run through the network,
@@ -76,20 +82,9 @@ pub fn predict_label(
     let (w, h) = image.dimensions();
     let shorts =
         std::iter::once(inference.short).chain(inference.extra_shorts.iter().map(|&s| Some(s)));
-    // A single plain pass keeps the logits (the same argmax, without the softmax's cost);
-    // several passes are averaged as probabilities.
-    let averaged = inference.flip || !inference.extra_shorts.is_empty();
     let mut sum: Option<Tensor<4>> = None;
     for short in shorts {
-        let scores = scores_at(
-            model,
-            config,
-            image,
-            short,
-            inference.flip,
-            averaged,
-            device,
-        );
+        let scores = scores_at(model, config, image, short, inference, device);
         let scores = resize(scores, [h as usize, w as usize], config.align_corners);
         sum = Some(match sum {
             Some(total) => total + scores,
@@ -103,15 +98,14 @@ pub fn predict_label(
 }
 
 /// `[1, classes, H', W']` scores of `image` resized to a short side of `short`: logits, or
-/// class probabilities when `probabilities` (always with `flip`, which averages the image's
-/// and its mirror's).
+/// class probabilities when `inference` averages several predictions (with its flip, the
+/// average of the image's and its mirror's).
 fn scores_at(
     model: &PspNet,
     config: &PspNetConfig,
     image: &RgbImage,
     short: Option<u32>,
-    flip: bool,
-    probabilities: bool,
+    inference: &Inference,
     device: &Device,
 ) -> Tensor<4> {
     let (w, h) = image.dimensions();
@@ -125,7 +119,7 @@ fn scores_at(
         _ => image,
     };
     let x = normalise(&[input], config, device);
-    if flip {
+    if inference.flip {
         // One batch of two: the image and its mirror; the mirror's probabilities are
         // mirrored back before the average. [2, classes, H, W] -> [1, classes, H, W].
         let probabilities = softmax(
@@ -135,7 +129,7 @@ fn scores_at(
         let direct = probabilities.clone().narrow(0, 0, 1);
         let mirrored = probabilities.narrow(0, 1, 1).flip([3]);
         (direct + mirrored) / 2.0
-    } else if probabilities {
+    } else if inference.averages() {
         softmax(model.forward(x), 1)
     } else {
         model.forward(x)
@@ -174,10 +168,8 @@ mod tests {
         assert_eq!(v, vec![0.0, 1.0, 0.0, 2.0, 0.0, 2.0]);
     }
 
-    #[test]
-    fn a_flipped_prediction_of_a_mirror_image_is_the_mirror_of_the_flipped_prediction() {
-        // Untrained networks are not mirror-symmetric, so a plain prediction is not
-        // equivariant; averaging with the mirror image makes it so (up to ties).
+    /// A tiny untrained network with weights from `seed`, its config and device.
+    fn tiny_network(seed: u64) -> (PspNet, PspNetConfig, Device) {
         let device = Device::flex();
         let config = PspNetConfig::new()
             .with_width(0.125)
@@ -185,11 +177,27 @@ mod tests {
             .with_psp_channels(16)
             .with_skip_channels(8);
         let model = config
-            .init_seeded(&device, 3)
+            .init_seeded(&device, seed)
             .unwrap_or_else(|e| panic!("{e}"));
-        let image = RgbImage::from_fn(40, 24, |x, y| {
-            image::Rgb([(x * 6) as u8, (y * 10) as u8, ((x * y) % 251) as u8])
-        });
+        (model, config, device)
+    }
+
+    /// A 40 × 24 image with no symmetry; `rotate` rotates its three colour patterns
+    /// among the channels.
+    fn asymmetric_image(rotate: usize) -> RgbImage {
+        RgbImage::from_fn(40, 24, |x, y| {
+            let mut channels = [(x * 6) as u8, (y * 10) as u8, ((x * y) % 251) as u8];
+            channels.rotate_left(rotate);
+            image::Rgb(channels)
+        })
+    }
+
+    #[test]
+    fn a_flipped_prediction_of_a_mirror_image_is_the_mirror_of_the_flipped_prediction() {
+        // Untrained networks are not mirror-symmetric, so a plain prediction is not
+        // equivariant; averaging with the mirror image makes it so (up to ties).
+        let (model, config, device) = tiny_network(3);
+        let image = asymmetric_image(0);
         let mirror = imageops::flip_horizontal(&image);
         let predict = |image: &RgbImage, flip: bool| {
             let inference = Inference {
@@ -212,18 +220,8 @@ mod tests {
 
     #[test]
     fn extra_sizes_average_into_a_label_of_the_image_size() {
-        let device = Device::flex();
-        let config = PspNetConfig::new()
-            .with_width(0.125)
-            .with_blocks(vec![1, 1, 1, 1])
-            .with_psp_channels(16)
-            .with_skip_channels(8);
-        let model = config
-            .init_seeded(&device, 5)
-            .unwrap_or_else(|e| panic!("{e}"));
-        let image = RgbImage::from_fn(40, 24, |x, y| {
-            image::Rgb([((x * y) % 251) as u8, (x * 6) as u8, (y * 10) as u8])
-        });
+        let (model, config, device) = tiny_network(5);
+        let image = asymmetric_image(2);
         let predict = |extra_shorts: Vec<u32>| {
             let inference = Inference {
                 extra_shorts,
