@@ -25,11 +25,17 @@ With `--libtorch-pipeline PATH` (a build with `--features libtorch`, run with th
 `$LIBTORCH`: scripts/setup_libtorch.sh, docs/gpu.md) ours is also timed on burn's LibTorch
 backend in the same run: PyTorch's kernels under burn's layers, autodiff and Adam.
 
+With `--bf16` (needs `--libtorch-pipeline`), two more sides: ours on LibTorch with
+`--bf16-convolutions` (the convolutions in bfloat16, everything else f32) and PyTorch
+channels-last with its CPU autocast to bfloat16 (`torch.autocast("cpu", torch.bfloat16)`, the
+way its users ask for bfloat16: convolutions and matrix products in bfloat16, and the layers
+between them on bfloat16 activations). Training steps only; inference stays f32.
+
 Usage (from the repository root; installs torch from PyPI when missing):
     cargo build --release -p pipeline
     python3 scripts/bench_segmenter.py [--rounds 3] [--runs 20] [--threads 2] [--size 256]
         [--pipeline target/release/pipeline] [--libtorch-pipeline target/libtorch/release/pipeline]
-        [--out docs/benchmarks/segmenter.json] [-- extra bench options]
+        [--bf16] [--out docs/benchmarks/segmenter.json] [-- extra bench options]
 """
 import argparse
 import importlib.util
@@ -91,10 +97,11 @@ def across_rounds(figures):
     return combined
 
 
-def pytorch(args, ref, config, channels_last=False):
+def pytorch(args, ref, config, channels_last=False, autocast_bf16=False):
     """PyTorch's figures; with `channels_last`, the weights and inputs stored channels last
     (`torch.channels_last`), the layout in which its CPU convolutions run fastest and the one
-    ours uses on LibTorch when training (models::layers)."""
+    ours uses on LibTorch when training (models::layers); with `autocast_bf16`, the training
+    step's forward pass under CPU autocast to bfloat16."""
     import torch
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -125,17 +132,19 @@ def pytorch(args, ref, config, channels_last=False):
     def step():
         opt.zero_grad(set_to_none=True)
         h, w = xb.shape[2:]
-        stages = model.encoder(xb)
-        y = drop(model.pyramid(stages[-1]))
-        if model.skip is not None:
-            y = model.skip(y, stages[0])
-        logits = torch.nn.functional.interpolate(model.classifier(y), size=(h, w), mode="bilinear",
-                                                 align_corners=cfg["align_corners"])
-        loss_fn(logits, yb).backward()
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast_bf16):
+            stages = model.encoder(xb)
+            y = drop(model.pyramid(stages[-1]))
+            if model.skip is not None:
+                y = model.skip(y, stages[0])
+            logits = torch.nn.functional.interpolate(model.classifier(y), size=(h, w), mode="bilinear",
+                                                     align_corners=cfg["align_corners"])
+        loss_fn(logits.float(), yb).backward()
         opt.step()
 
     train = median_ms(step, min(args.warmup, 1), args.train_runs)
-    return {"torch": torch.__version__, "channels_last": channels_last, "parameters": params,
+    return {"torch": torch.__version__, "channels_last": channels_last, "autocast_bf16": autocast_bf16,
+            "parameters": params,
             "parameters_with_running_stats": params + running_stats,
             "inference_ms": {"median": inf[0], "min": inf[1], "max": inf[2], "runs": args.runs},
             "train_step_ms": {"median": train[0], "min": train[1], "max": train[2], "runs": args.train_runs}}
@@ -153,13 +162,18 @@ def main():
     default_bin = Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target")) / "release" / "pipeline"
     ap.add_argument("--pipeline", default=str(default_bin))
     ap.add_argument("--libtorch-pipeline", help="also time ours on burn's LibTorch backend with this build")
+    ap.add_argument("--bf16", action="store_true",
+                    help="also time training steps with bfloat16 convolutions (ours) and autocast (PyTorch)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "segmenter.json"))
     args, extra = ap.parse_known_args()
     extra = [e for e in extra if e != "--"]
+    if args.bf16 and not args.libtorch_pipeline:
+        sys.exit("--bf16 needs --libtorch-pipeline: bfloat16 convolutions run on the LibTorch backend only")
     if not Path(args.pipeline).exists():
         sys.exit(f"{args.pipeline} not found: cargo build --release -p pipeline (or give --pipeline)")
     ref = load_reference()
-    rounds = {"burn": [], "pytorch": [], "burn_libtorch": [], "pytorch_channels_last": []}
+    rounds = {"burn": [], "pytorch": [], "burn_libtorch": [], "pytorch_channels_last": [],
+              "burn_libtorch_bf16": [], "pytorch_channels_last_bf16": []}
     for round_index in range(args.rounds):
         burn, cmd = ours(args, extra)
         rounds["burn"].append(burn)
@@ -168,6 +182,11 @@ def main():
             rounds["burn_libtorch"].append(on_libtorch)
         rounds["pytorch"].append(pytorch(args, ref, burn["config"]))
         rounds["pytorch_channels_last"].append(pytorch(args, ref, burn["config"], channels_last=True))
+        if args.bf16:
+            bf16, bf16_cmd = ours(args, extra + ["--bf16-convolutions"], args.libtorch_pipeline, "libtorch")
+            rounds["burn_libtorch_bf16"].append(bf16)
+            rounds["pytorch_channels_last_bf16"].append(
+                pytorch(args, ref, burn["config"], channels_last=True, autocast_bf16=True))
         print(f"round {round_index + 1}: training step "
               + ", ".join(f"{side} {figures[-1]['train_step_ms']['median']:.0f} ms"
                           for side, figures in rounds.items() if figures), file=sys.stderr)
@@ -196,6 +215,15 @@ def main():
         result["train_step_ratio_torch_channels_last_over_burn_libtorch"] = (
             torch_cl["train_step_ms"]["median"] / on_libtorch["train_step_ms"]["median"])
         sides.append(("burn (LibTorch)", on_libtorch))
+    if args.bf16:
+        ours_bf16 = across_rounds(rounds["burn_libtorch_bf16"])
+        torch_bf16 = across_rounds(rounds["pytorch_channels_last_bf16"])
+        result.update({
+            "burn_libtorch_bf16": ours_bf16, "bf16_command": " ".join(map(str, bf16_cmd)),
+            "pytorch_channels_last_bf16": torch_bf16,
+            "train_step_ratio_torch_bf16_over_burn_libtorch_bf16": (
+                torch_bf16["train_step_ms"]["median"] / ours_bf16["train_step_ms"]["median"]),
+        })
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
     print(f"network: {burn['parameters']} parameters, {burn['gflops_per_image']:.2f} GFLOPs per {args.size}x{args.size} image")
@@ -215,6 +243,10 @@ def main():
         theirs = [peer[key]["median"] for _, peer in peers]
         print(f"| {label} | " + " | ".join(format(v, fmt) for v in mine + theirs) + " | "
               + " | ".join(f"{t / m:.2f}" for t in theirs for m in mine) + " |")
+    if args.bf16:
+        mine, theirs = ours_bf16["train_step_ms"]["median"], torch_bf16["train_step_ms"]["median"]
+        print(f"| training step in bfloat16 (ours: --bf16-convolutions on LibTorch; PyTorch: channels-last, "
+              f"CPU autocast) | {mine:.0f} | {theirs:.0f} | PyTorch / ours {theirs / mine:.2f} |")
     print(f"PyTorch {torch_figures['torch']}; raw figures in {args.out}")
 
 

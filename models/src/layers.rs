@@ -10,6 +10,11 @@
 //! mechanism: the `torch` module, with the `libtorch` feature), and [`conv2d`] stores its input
 //! channels last there, in training and inference alike; every other backend runs burn's own
 //! layer unchanged. Measured in docs/benchmarks.md (segmenter and DQN steps).
+//!
+//! [`Bf16Convolutions`] runs the LibTorch convolutions of one thread in bfloat16 while it lives,
+//! as PyTorch's CPU autocast does: the weights, gradients and every other layer stay in f32.
+
+use std::cell::Cell;
 
 use burn::nn::conv::Conv2d;
 use burn::nn::{BatchNorm, PaddingConfig2d};
@@ -53,6 +58,47 @@ pub fn relu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
         );
     }
     burn::tensor::activation::relu(x)
+}
+
+thread_local! {
+    static BF16_CONVOLUTIONS: Cell<bool> = const { Cell::new(false) };
+}
+
+/// While a value of this type lives, [`conv2d`] on the LibTorch backend casts its input and
+/// weights to bfloat16 on this thread, convolves and casts the output back to f32 (LibTorch's
+/// autograd differentiates the casts, so the gradients reach the f32 weights). On a CPU with
+/// bfloat16 dot products (AVX-512 BF16, AMX) the convolutions run faster; elsewhere oneDNN
+/// emulates them, slower. No effect on other backends: see [`bf16_convolutions_run_on`].
+#[derive(Debug)]
+#[must_use = "the convolutions are in bfloat16 only while the guard lives"]
+pub struct Bf16Convolutions {
+    previous: bool,
+}
+
+impl Bf16Convolutions {
+    pub fn enter() -> Bf16Convolutions {
+        Bf16Convolutions {
+            previous: BF16_CONVOLUTIONS.with(|on| on.replace(true)),
+        }
+    }
+}
+
+impl Drop for Bf16Convolutions {
+    fn drop(&mut self) {
+        BF16_CONVOLUTIONS.with(|on| on.set(self.previous));
+    }
+}
+
+/// Whether [`Bf16Convolutions`] changes anything on `device` (LibTorch, in a build with the
+/// `libtorch` feature).
+pub fn bf16_convolutions_run_on(device: &burn::tensor::Device) -> bool {
+    #[cfg(feature = "libtorch")]
+    return torch::is_libtorch(device);
+    #[cfg(not(feature = "libtorch"))]
+    {
+        let _ = device;
+        false
+    }
 }
 
 /// The layer's convolution options when its padding is the same on both sides of each axis
@@ -273,20 +319,34 @@ pub mod torch {
         }
     }
 
-    /// `conv2d(inputs[0], inputs[1]) + inputs[2]` (the bias when there are three).
+    /// `conv2d(inputs[0], inputs[1]) + inputs[2]` (the bias when there are three); in
+    /// bfloat16 with an f32 result while a [`super::Bf16Convolutions`] lives on this thread.
     fn conv2d_op<const N: usize>(
         inputs: &[tch::Tensor; N],
         options: &ConvOptions<2>,
     ) -> tch::Tensor {
-        tch::Tensor::conv2d(
-            &channels_last(&inputs[0]),
-            &inputs[1],
-            inputs.get(2),
+        let bf16 = super::BF16_CONVOLUTIONS.with(|on| on.get());
+        let cast = |t: &tch::Tensor| {
+            if bf16 {
+                t.to_kind(tch::Kind::BFloat16)
+            } else {
+                t.shallow_clone()
+            }
+        };
+        let output = tch::Tensor::conv2d(
+            &cast(&channels_last(&inputs[0])),
+            &cast(&inputs[1]),
+            inputs.get(2).map(cast).as_ref(),
             options.stride.map(|v| v as i64),
             options.padding_begin().map(|v| v as i64),
             options.dilation.map(|v| v as i64),
             options.groups as i64,
-        )
+        );
+        if bf16 {
+            output.to_kind(tch::Kind::Float)
+        } else {
+            output
+        }
     }
 
     /// `x` with its channels stored last (strides `[h·w·c, 1, w·c, c]`), the layout in which
@@ -472,6 +532,46 @@ mod tests {
                 "{what}[{i}]: LibTorch's {a} against burn's {b}"
             );
         }
+    }
+
+    /// Under [`Bf16Convolutions`] a convolution gives f32 values and gradients within
+    /// bfloat16's precision (8 bits of mantissa) of the f32 ones, and the guard's end restores
+    /// f32 exactly.
+    #[test]
+    fn bf16_convolutions_stay_close_to_f32_and_end_with_the_guard() {
+        let device = device();
+        let x = Tensor::<4>::random([2, 8, 12, 12], Distribution::Normal(0.0, 1.0), &device);
+        let conv = Conv2dConfig::new([8, 6], [3, 3])
+            .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+            .init(&device);
+        let run = || {
+            let x = x.clone().detach().require_grad();
+            let y = conv2d(&conv, x.clone());
+            let grads = (y.clone() * y.clone()).sum().backward();
+            let weight_grad = conv.weight.val().grad(&grads).expect("a weight gradient");
+            (values(y), values(weight_grad))
+        };
+        let (y32, w32) = run();
+        let (y16, w16) = {
+            let _bf16 = Bf16Convolutions::enter();
+            run()
+        };
+        let relative = |a: &[f32], b: &[f32]| {
+            let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+            a.iter().zip(b).fold(0f32, |m, (a, b)| m.max((a - b).abs())) / scale
+        };
+        assert!(
+            relative(&y16, &y32) < 2e-2,
+            "output {}",
+            relative(&y16, &y32)
+        );
+        assert!(
+            relative(&w16, &w32) < 2e-2,
+            "weight grad {}",
+            relative(&w16, &w32)
+        );
+        assert!(y16 != y32, "the guard changed nothing");
+        assert_eq!(run(), (y32, w32), "f32 after the guard ended");
     }
 
     /// Gradients of `sum(layer(x) * r)` with respect to `x` and the parameters, through ours

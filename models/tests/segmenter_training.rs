@@ -115,6 +115,26 @@ fn tiny_network_overfits_four_images() {
     );
 }
 
+#[test]
+fn bf16_convolutions_are_refused_off_libtorch_before_the_run_folder_is_made() {
+    let root = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let dataset = write_dataset(&root.path().join("data"));
+    let run = root.path().join("run");
+    let config = tiny_config(1).with_bf16_convolutions(true);
+    let error = train(
+        &run,
+        &config,
+        &data(&dataset),
+        false,
+        &Device::flex(),
+        &mut Quiet,
+    )
+    .err()
+    .unwrap_or_else(|| panic!("bf16 convolutions trained on the flex backend"));
+    assert!(error.to_string().contains("LibTorch"), "{error}");
+    assert!(!run.exists(), "the refused run left {}", run.display());
+}
+
 fn pool(threads: usize) -> rayon::ThreadPool {
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)

@@ -59,6 +59,10 @@ pub struct BenchArgs {
     #[arg(long, value_name = "N", default_value_t = 8)]
     pub train_batch: usize,
 
+    /// Run the training steps' convolutions in bfloat16 (`--device libtorch` only).
+    #[arg(long)]
+    pub bf16_convolutions: bool,
+
     /// Print the figures as JSON.
     #[arg(long)]
     pub json: bool,
@@ -79,6 +83,8 @@ pub struct BenchReport {
     pub images_per_second: f64,
     pub train_batch: usize,
     pub train_step_ms: Option<Timing>,
+    /// Whether the training steps' convolutions ran in bfloat16.
+    pub bf16_convolutions: bool,
 }
 
 #[derive(Debug, Serialize)]
@@ -173,6 +179,9 @@ fn training_steps(config: &PspNetConfig, args: &BenchArgs, device: &Device) -> R
     );
     let mut step = 0u64;
     time_runs(args.warmup.min(1), args.train_steps, device, || {
+        let _bf16 = args
+            .bf16_convolutions
+            .then(models::layers::Bf16Convolutions::enter);
         let heads = model.forward_train(x.clone(), step);
         let loss = segmentation_loss(heads.logits, &targets);
         let grads = GradientsParams::from_grads(loss.backward(), &model);
@@ -197,6 +206,13 @@ pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
         .into());
     }
     let device = ctx.device()?;
+    if args.bf16_convolutions && !models::layers::bf16_convolutions_run_on(&device) {
+        return Err(CliError::new(
+            "--bf16-convolutions needs the LibTorch backend",
+            "add --device libtorch (a build with --features libtorch: docs/gpu.md)",
+        )
+        .into());
+    }
     let (model, config) = match &args.model {
         Some(dir) => open_model(dir, &device)?,
         None => {
@@ -235,6 +251,7 @@ pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
         inference_ms,
         train_step_ms,
         train_batch: args.train_batch,
+        bf16_convolutions: args.bf16_convolutions,
         size: args.size,
         batch: args.batch,
         threads: args.threads,

@@ -102,6 +102,11 @@ pub struct TrainArgs {
     #[arg(long, value_name = "DECAY")]
     pub ema_decay: Option<f64>,
 
+    /// Run the training steps' convolutions in bfloat16, weights and everything else in f32
+    /// (`--device libtorch` only; faster on CPUs with AVX-512 BF16 or AMX).
+    #[arg(long)]
+    pub bf16_convolutions: bool,
+
     #[command(flatten)]
     pub arch: ArchArgs,
 
@@ -204,6 +209,7 @@ impl TrainArgs {
         set(&mut c.dice_weight, self.dice_weight);
         set(&mut c.balanced_crops, self.balanced_crops);
         set(&mut c.ema_decay, self.ema_decay);
+        c.bf16_convolutions |= self.bf16_convolutions;
         if self.samples_per_epoch.is_some() {
             c.samples_per_epoch = self.samples_per_epoch;
         }
