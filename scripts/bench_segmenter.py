@@ -133,11 +133,7 @@ def pytorch(args, ref, config, channels_last=False, autocast_bf16=False):
         opt.zero_grad(set_to_none=True)
         h, w = xb.shape[2:]
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast_bf16):
-            stages = model.encoder(xb)
-            y = drop(model.pyramid(stages[-1]))
-            if model.skip is not None:
-                y = model.skip(y, stages[0])
-            logits = torch.nn.functional.interpolate(model.classifier(y), size=(h, w), mode="bilinear",
+            logits = torch.nn.functional.interpolate(model.head(xb, drop), size=(h, w), mode="bilinear",
                                                      align_corners=cfg["align_corners"])
         loss_fn(logits.float(), yb).backward()
         opt.step()

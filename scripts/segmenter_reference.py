@@ -121,12 +121,14 @@ class Encoder(nn.Module):
         self.stages = nn.ModuleList(stages)
 
     def forward(self, x):
-        x = self.pool(F.relu(self.stem(x)))
+        """The stem's output (stride 2, before the max-pool) and every stage's."""
+        stem = F.relu(self.stem(x))
+        x = self.pool(stem)
         outs = []
         for s in self.stages:
             x = s(x)
             outs.append(x)
-        return outs
+        return stem, outs
 
 
 class PoolBranch(nn.Module):
@@ -176,16 +178,27 @@ class PspNet(nn.Module):
         self.pyramid = PyramidPooling(cfg, w[cfg["depth"] - 1])
         self.skip = SkipRefinement(w[1], cfg["psp_channels"], cfg["skip_channels"], cfg["align_corners"]) \
             if cfg["skip_channels"] > 0 else None
-        head = cfg["skip_channels"] or cfg["psp_channels"]
-        self.classifier = nn.Conv2d(head, cfg["classes"], 1)
+        coarse = cfg["skip_channels"] or cfg["psp_channels"]
+        fine = cfg.get("fine_skip_channels", 0)
+        # The stride-2 refinement on the stem's output (burn's `fine_skip`).
+        self.fine_skip = SkipRefinement(w[0], coarse, fine, cfg["align_corners"]) if fine > 0 else None
+        self.classifier = nn.Conv2d(fine or coarse, cfg["classes"], 1)
+
+    def head(self, x, dropout=None):
+        """The logits at the head's resolution; `dropout` (a module) after the pyramid, in training."""
+        stem, stages = self.encoder(x)
+        y = self.pyramid(stages[-1])
+        if dropout is not None:
+            y = dropout(y)
+        if self.skip is not None:
+            y = self.skip(y, stages[0])
+        if self.fine_skip is not None:
+            y = self.fine_skip(y, stem)
+        return self.classifier(y)
 
     def forward(self, x):
         h, w = x.shape[2:]
-        stages = self.encoder(x)
-        y = self.pyramid(stages[-1])
-        if self.skip is not None:
-            y = self.skip(y, stages[0])
-        return F.interpolate(self.classifier(y), size=(h, w), mode="bilinear",
+        return F.interpolate(self.head(x), size=(h, w), mode="bilinear",
                              align_corners=self.cfg["align_corners"])
 
 
