@@ -75,21 +75,29 @@ fn val_mious(run: &Path) -> Vec<f64> {
         .collect()
 }
 
+/// A new run into `run` on the flex backend, training and validating on `dataset`.
+fn train_fresh(
+    run: &Path,
+    config: &TrainingConfig,
+    dataset: &Path,
+) -> models::segmenter::Result<models::segmenter::train::TrainSummary> {
+    train(
+        run,
+        config,
+        &data(dataset),
+        false,
+        &Device::flex(),
+        &mut Quiet,
+    )
+}
+
 #[test]
 fn tiny_network_overfits_four_images() {
     let root = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
     let dataset = write_dataset(&root.path().join("data"));
     let run = root.path().join("run");
     let config = tiny_config(150).with_patience(Some(150));
-    let summary = train(
-        &run,
-        &config,
-        &data(&dataset),
-        false,
-        &Device::flex(),
-        &mut Quiet,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let summary = train_fresh(&run, &config, &dataset).unwrap_or_else(|e| panic!("{e}"));
     assert!(
         summary.state.best_miou >= 0.95,
         "best validation mIoU {} after {} epochs",
@@ -121,16 +129,9 @@ fn bf16_convolutions_are_refused_off_libtorch_before_the_run_folder_is_made() {
     let dataset = write_dataset(&root.path().join("data"));
     let run = root.path().join("run");
     let config = tiny_config(1).with_bf16_convolutions(true);
-    let error = train(
-        &run,
-        &config,
-        &data(&dataset),
-        false,
-        &Device::flex(),
-        &mut Quiet,
-    )
-    .err()
-    .unwrap_or_else(|| panic!("bf16 convolutions trained on the flex backend"));
+    let error = train_fresh(&run, &config, &dataset)
+        .err()
+        .unwrap_or_else(|| panic!("bf16 convolutions trained on the flex backend"));
     assert!(error.to_string().contains("LibTorch"), "{error}");
     assert!(!run.exists(), "the refused run left {}", run.display());
 }
