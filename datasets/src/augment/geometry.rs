@@ -74,6 +74,12 @@ impl Warp {
     pub fn scale(self, factor: f64) -> Warp {
         let w = (f64::from(self.width) * factor).round().max(1.0) as u32;
         let h = (f64::from(self.height) * factor).round().max(1.0) as u32;
+        self.resize(w, h)
+    }
+
+    /// Resizes to `width × height`, edge to edge.
+    pub fn resize(self, width: u32, height: u32) -> Warp {
+        let (w, h) = (width.max(1), height.max(1));
         let sx = f64::from(self.width) / f64::from(w);
         let sy = f64::from(self.height) / f64::from(h);
         self.then((w, h), &[[sx, 0.0, 0.0], [0.0, sy, 0.0], [0.0, 0.0, 1.0]])
@@ -309,18 +315,25 @@ impl<'a> Source<'a> {
     }
 
     /// Bilinear image value and nearest label at fixed-point point `(fx, fy)` (minus half a
-    /// pixel), any taps outside the input being black / ignore.
+    /// pixel). A point outside the input is black and ignored; a point inside whose taps
+    /// reach past the edge takes the edge pixels (as image's resize does), so the image is
+    /// black exactly where the label is ignore, and an enlarged image keeps its border.
     fn sample_edge(&self, fx: i64, fy: i64) -> ([u8; 3], u8) {
         let (x0, y0) = (fx >> FRAC, fy >> FRAC);
         let (wx, wy) = (weight(fx), weight(fy));
         let inside = |x: i64, y: i64| x >= 0 && y >= 0 && x < self.width && y < self.height;
+        // The pixel containing the point: the nearer tap on each axis.
+        let (lx, ly) = (
+            x0 + i64::from(wx >= WONE / 2),
+            y0 + i64::from(wy >= WONE / 2),
+        );
+        if !inside(lx, ly) {
+            return ([0; 3], IGNORE);
+        }
         let tap = |x: i64, y: i64| -> [u32; 3] {
-            if inside(x, y) {
-                let i = (y * self.width + x) as usize * 3;
-                [0, 1, 2].map(|k| u32::from(self.image[i + k]))
-            } else {
-                [0; 3]
-            }
+            let (x, y) = (x.clamp(0, self.width - 1), y.clamp(0, self.height - 1));
+            let i = (y * self.width + x) as usize * 3;
+            [0, 1, 2].map(|k| u32::from(self.image[i + k]))
         };
         let (a, b, c, d) = (
             tap(x0, y0),
@@ -329,17 +342,7 @@ impl<'a> Source<'a> {
             tap(x0 + 1, y0 + 1),
         );
         let pixel = [0, 1, 2].map(|k| bilinear(a[k], b[k], c[k], d[k], wx, wy));
-        // The pixel containing the point: the nearer tap on each axis.
-        let (lx, ly) = (
-            x0 + i64::from(wx >= WONE / 2),
-            y0 + i64::from(wy >= WONE / 2),
-        );
-        let label = if inside(lx, ly) {
-            self.label[(ly * self.width + lx) as usize]
-        } else {
-            IGNORE
-        };
-        (pixel, label)
+        (pixel, self.label[(ly * self.width + lx) as usize])
     }
 
     /// The interior of an affine row: every point's four taps are inside the input.
@@ -541,8 +544,9 @@ mod tests {
         Ok(())
     }
 
-    /// The warp computed the plain way: each output pixel centre mapped in f64, bilinear
-    /// taps in f64 with black outside, the label from the pixel containing the point.
+    /// The warp computed the plain way: each output pixel centre mapped in f64, the label
+    /// from the pixel containing the point, bilinear taps in f64 clamped to the input where
+    /// the point is inside it, black and ignore where it is not.
     /// Also returns, per pixel, whether the point lies within 1e-6 of a pixel edge (where
     /// fixed-point rounding may pick the neighbouring label).
     fn reference(warp: &Warp, img: &RgbImage, lab: &GrayImage) -> (RgbImage, GrayImage, Vec<bool>) {
@@ -558,21 +562,18 @@ mod tests {
                 let (ax, ay) = (fx - x0, fy - y0);
                 let (x0, y0) = (x0 as i64, y0 as i64);
                 let tap = |tx: i64, ty: i64, k: usize| {
-                    if tx < 0 || ty < 0 || tx >= w || ty >= h {
-                        0.0
-                    } else {
-                        f64::from(img.get_pixel(tx as u32, ty as u32).0[k])
-                    }
+                    let (tx, ty) = (tx.clamp(0, w - 1), ty.clamp(0, h - 1));
+                    f64::from(img.get_pixel(tx as u32, ty as u32).0[k])
                 };
-                let p = [0, 1, 2].map(|k| {
-                    let top = tap(x0, y0, k) * (1.0 - ax) + tap(x0 + 1, y0, k) * ax;
-                    let bottom = tap(x0, y0 + 1, k) * (1.0 - ax) + tap(x0 + 1, y0 + 1, k) * ax;
-                    (top * (1.0 - ay) + bottom * ay).round() as u8
-                });
-                out.put_pixel(x, y, image::Rgb(p));
                 let (lx, ly) = (qx.floor() as i64, qy.floor() as i64);
                 if lx >= 0 && ly >= 0 && lx < w && ly < h {
                     out_lab.put_pixel(x, y, *lab.get_pixel(lx as u32, ly as u32));
+                    let p = [0, 1, 2].map(|k| {
+                        let top = tap(x0, y0, k) * (1.0 - ax) + tap(x0 + 1, y0, k) * ax;
+                        let bottom = tap(x0, y0 + 1, k) * (1.0 - ax) + tap(x0 + 1, y0 + 1, k) * ax;
+                        (top * (1.0 - ay) + bottom * ay).round() as u8
+                    });
+                    out.put_pixel(x, y, image::Rgb(p));
                 }
                 let near_edge = |v: f64| (v - v.round()).abs() < 1e-6;
                 ambiguous.push(near_edge(qx) || near_edge(qy));
@@ -633,9 +634,13 @@ mod tests {
                 .zip(fast_lab.pixels().zip(slow_lab.pixels()))
                 .enumerate()
             {
+                // On a pixel edge, the two may disagree on whether the point is inside.
                 for k in 0..3 {
                     let diff = (i32::from(f.0[k]) - i32::from(s.0[k])).abs();
-                    assert!(diff <= 1, "{w}x{h} {warp:?} pixel {i}: {f:?} vs {s:?}");
+                    assert!(
+                        diff <= 1 || ambiguous[i],
+                        "{w}x{h} {warp:?} pixel {i}: {f:?} vs {s:?}"
+                    );
                 }
                 assert!(
                     fl == sl || ambiguous[i],
@@ -685,6 +690,35 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn an_enlarged_image_keeps_its_border() {
+        // Enlarged 1.5 times, the outermost output pixels' taps reach past the input's
+        // edge: they take the edge pixels, not a blend with black.
+        let img = RgbImage::from_pixel(8, 6, image::Rgb([200, 100, 50]));
+        let lab = GrayImage::from_pixel(8, 6, image::Luma([3]));
+        let (i, l) = Warp::identity(8, 6).resize(12, 9).run(&img, &lab);
+        assert_eq!(i.dimensions(), (12, 9));
+        assert!(i.pixels().all(|p| p.0 == [200, 100, 50]));
+        assert!(l.pixels().all(|p| p.0 == [3]));
+        // A crop reaching past the enlarged image is padded there.
+        let (i, l) = Warp::identity(8, 6)
+            .resize(12, 9)
+            .crop(4, 2, 10, 10)
+            .run(&img, &lab);
+        assert_eq!(
+            (i.get_pixel(7, 6).0, l.get_pixel(7, 6).0),
+            ([200, 100, 50], [3])
+        );
+        assert_eq!(
+            (i.get_pixel(8, 6).0, l.get_pixel(8, 6).0),
+            ([0, 0, 0], [IGNORE])
+        );
+        assert_eq!(
+            (i.get_pixel(7, 7).0, l.get_pixel(7, 7).0),
+            ([0, 0, 0], [IGNORE])
+        );
     }
 
     #[test]
