@@ -13,9 +13,9 @@
 use std::process::ExitCode;
 use std::time::Instant;
 
-use image::imageops::{self, FilterType};
+use image::imageops;
 use models::segmenter::data::{
-    Augment, Sample, Source, SourceSpec, Split, epoch_draws, load_batch, scaled_size,
+    Augment, Sample, Source, SourceSpec, Split, epoch_draws, load_batch, resize_sample,
 };
 
 /// Items decoded and augmented per timing.
@@ -92,13 +92,10 @@ fn run(dataset: &str, size: u32, crop: u32) -> Result<String, Box<dyn std::error
 /// The way before: enlarge the whole item, then copy the crop's pixels (top-left crop; the
 /// cost does not depend on where).
 fn resize_whole_then_crop(sample: &Sample, size: u32, crop: u32) -> Sample {
-    let (w, h) = sample.image.dimensions();
-    let (nw, nh) = scaled_size(w, h, size);
-    let image = imageops::resize(&sample.image, nw, nh, FilterType::Triangle);
-    let label = imageops::resize(&sample.label, nw, nh, FilterType::Nearest);
+    let resized = resize_sample(sample, size);
     Sample {
         id: sample.id.clone(),
-        image: imageops::crop_imm(&image, 0, 0, crop, crop).to_image(),
-        label: imageops::crop_imm(&label, 0, 0, crop, crop).to_image(),
+        image: imageops::crop_imm(&resized.image, 0, 0, crop, crop).to_image(),
+        label: imageops::crop_imm(&resized.label, 0, 0, crop, crop).to_image(),
     }
 }

@@ -223,9 +223,8 @@ impl Augment {
             let x0 = rng.random_range(0..=w.saturating_sub(self.crop));
             (x0, rng.random_range(0..=h.saturating_sub(self.crop)))
         });
-        // Only the crop is resampled (bilinear image, nearest label; black and ignore where
-        // it reaches past the resized image): a quarter to a half of the work of resizing
-        // the whole image first.
+        // Only the crop's pixels are computed (bilinear image, nearest label; black and
+        // ignore where it reaches past the resized image), never the whole resized image.
         let mut warp = Warp::identity(w0, h0)
             .resize(w, h)
             .crop(x0, y0, self.crop, self.crop);
