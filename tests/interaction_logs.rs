@@ -223,7 +223,7 @@ fn replay_labels_real_approaches_and_scores_the_baselines() {
 }
 
 /// `agent train --offline` (issue 7, offline RL): CQL on the drivers of one FT recording,
-/// with two frames stacked 0.3 s apart, writes an agent folder like an online one's,
+/// with two frames stacked 0.3 s apart and the rule and motion inputs, writes an agent folder like an online one's,
 /// deterministically; `replay eval` and
 /// `agent eval` (the simulator on the same map) take it as they take online agents, and
 /// the inputs it was told to ignore (aggressiveness, last action) change nothing.
@@ -238,7 +238,7 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         &config,
         "[agent.dqn]\nbatch_size = 16\n[agent.dqn.network]\nconvolutions = []\nscalar_hidden = 0\nhidden = [16]\n\
          [agent.offline]\ntarget_update_every = 50\n\
-         [agent.task]\nframe_steps = 3\n\
+         [agent.task]\nframe_steps = 3\nrule_inputs = true\nmotion_inputs = true\n\
          [agent.task.observation]\nwidth = 21\nheight = 21\nstack = 2\n",
     )
     .unwrap();
@@ -313,7 +313,8 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     assert_eq!(bc_run["config"]["algorithm"], "behaviour_cloning");
     assert!(bc_run["summary"]["curve"][0]["td_loss"].is_null());
 
-    // Replayed against the drivers: the aggressiveness levels decide alike.
+    // Replayed against the drivers, open and closed loop: the aggressiveness levels decide
+    // alike.
     let replay = tmp.path().join("replay");
     let out = pipeline()
         .args([
@@ -321,6 +322,7 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
             "off",
             "replay",
             "eval",
+            "--closed-loop",
             "--aggressiveness",
             "0,1",
             "--log",
@@ -349,6 +351,20 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         policy("agent, aggressiveness 0")["confusion"],
         policy("agent, aggressiveness 1")["confusion"]
     );
+    let driven: Vec<serde_json::Value> = r["closed_loop"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|p| p["policy"].as_str().unwrap().starts_with("agent"))
+        .map(|p| {
+            let mut figures = p.clone();
+            figures.as_object_mut().unwrap().remove("policy");
+            figures
+        })
+        .collect();
+    assert_eq!(driven.len(), 2, "{r}");
+    assert!(driven[0]["episodes"].as_u64().unwrap() > 0, "{r}");
+    assert_eq!(driven[0], driven[1]);
 
     // In the simulator, on the same map.
     let eval = tmp.path().join("eval");
@@ -373,7 +389,7 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     assert!(eval.join("eval.json").is_file());
 
     // Refused before anything is written: offline learning is for roundabout insertion only,
-    // and logs cannot give the rule inputs nor decisions several steps apart.
+    // and logs cannot give decisions several steps apart.
     let refused = |global: &[&OsStr], task: &[&str], message: &str| {
         let bad = tmp.path().join("bad");
         let out = pipeline()
@@ -396,23 +412,14 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         &["--task", "route-following"],
         "--offline learns roundabout insertion",
     );
-    // An `[agent.task]` setting (file name, TOML line) and the refusal it gets.
-    for (name, setting, message) in [
-        (
-            "rule_inputs",
-            "rule_inputs = true",
-            "`rule_inputs = true`, which projected logs cannot give",
-        ),
-        (
-            "action_repeat",
-            "action_repeat = 3",
-            "`action_repeat = 3`: it decides every 3 steps",
-        ),
-    ] {
-        let config = tmp.path().join(format!("{name}.toml"));
-        std::fs::write(&config, format!("[agent.task]\n{setting}\n")).unwrap();
-        refused(&["--config".as_ref(), config.as_os_str()], &[], message);
-    }
+    // An `[agent.task]` setting logs cannot give, and its refusal.
+    let config = tmp.path().join("action_repeat.toml");
+    std::fs::write(&config, "[agent.task]\naction_repeat = 3\n").unwrap();
+    refused(
+        &["--config".as_ref(), config.as_os_str()],
+        &[],
+        "`action_repeat = 3`: it decides every 3 steps",
+    );
 }
 
 /// Topic roles (issue 7): detected on the Husky drive (odometry and GPS, no objects), a

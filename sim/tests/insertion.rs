@@ -257,6 +257,66 @@ fn rule_inputs_give_the_agent_what_the_rules_see() {
     );
 }
 
+/// With `motion_inputs` (after the rule inputs), the scalar inputs end with the ego's speed
+/// 0.5, 1 and 2 s ago and its slowest this episode, read off the episode's own speeds; the
+/// episode itself does not change.
+#[test]
+fn motion_inputs_give_the_agent_its_own_recent_speeds() {
+    use sim::tasks::insertion::{MOTION_SCALARS, RULE_SCALARS, SCALARS};
+    let map = montlake();
+    let config = InsertionConfig::default();
+    let scale = config.speed_scale_mps as f32;
+    let mut plain = montlake_env(&map, config.clone());
+    let mut with_motion = montlake_env(
+        &map,
+        InsertionConfig {
+            rule_inputs: true,
+            motion_inputs: true,
+            ..config
+        },
+    );
+    let extra = SCALARS + RULE_SCALARS;
+    assert_eq!(
+        with_motion.observation_spec().scalars,
+        extra + MOTION_SCALARS
+    );
+    let first = with_motion.reset(3);
+    plain.reset(3);
+    // The speeds of the episode so far, in the scalar's units, the first at the reset.
+    let mut speeds = vec![first.scalars[0]];
+    assert_eq!(first.scalars[extra..], [speeds[0]; MOTION_SCALARS]);
+    // Not Permitted first (the ego brakes towards its line), then Permitted.
+    for k in 0..300 {
+        let action = if k < 60 { 1 } else { 0 };
+        let a = plain.step(action);
+        let b = with_motion.step(action);
+        assert_eq!((a.reward, a.outcome), (b.reward, b.outcome));
+        assert_eq!(b.observation.scalars[..SCALARS], a.observation.scalars[..]);
+        speeds.push(b.observation.scalars[0]);
+        let now = speeds.len() - 1;
+        let back = |steps: usize| speeds[now.saturating_sub(steps)];
+        let slowest = speeds.iter().copied().fold(f32::INFINITY, f32::min);
+        let want = [back(5), back(10), back(20), slowest];
+        for (got, want) in b.observation.scalars[extra..].iter().zip(want) {
+            assert!(
+                (got - want).abs() < 1e-6,
+                "step {k}: {:?} against {want:?}",
+                &b.observation.scalars[extra..]
+            );
+        }
+        if b.outcome.is_some() {
+            break;
+        }
+    }
+    let slowest = speeds.iter().copied().fold(f32::INFINITY, f32::min);
+    assert!(
+        slowest * scale < 1.0 && speeds.len() > 80,
+        "the ego braked (slowest {} m/s) and drove on ({} steps)",
+        slowest * scale,
+        speeds.len()
+    );
+}
+
 /// With `action_repeat = 3` one decision is three world steps under the same action: the
 /// same world, the rewards summed, the same outcome and the same newest frame as three
 /// single steps, and an episode ends within the decision where it ends.

@@ -37,7 +37,9 @@ use models::dqn::{greedy_action, load_network, read_agent_description};
 use models::policy::QPolicy;
 use serde::{Deserialize, Serialize};
 use sim::render::{BevConfig, BevRenderer, FrameStack};
-use sim::tasks::insertion::{Action, InsertionConfig, observation_scalars, observation_spec};
+use sim::tasks::insertion::{
+    Action, InsertionConfig, MotionHistory, observation_scalars, rule_scalars_of,
+};
 use sim::{Observation, ObservationSpec};
 
 use super::Context;
@@ -443,14 +445,15 @@ impl Views {
         })
     }
 
-    /// Per frame of the approach: its layer stack (oldest first, `frame_spacing` log frames
-    /// apart, the first frame repeated at the start) and the vehicle's speed.
-    pub(crate) fn stacks(
+    /// Per frame of the approach: what a policy sees there ([`FrameInput`]): the layer
+    /// stack (oldest first, `frame_spacing` log frames apart, the first frame repeated at the
+    /// start), the vehicle's speed and, as the task asks, its rule and motion inputs.
+    pub(crate) fn inputs(
         &self,
         map: &maps::Map,
         frames: &[LogFrame],
         approach: &Approach,
-    ) -> Vec<(Vec<u8>, f64)> {
+    ) -> Vec<FrameInput> {
         let (projected, layers) = project(
             map,
             &self.renderer,
@@ -459,46 +462,164 @@ impl Views {
             &NoiseConfig::default(),
         );
         let frame_len = self.task.observation.frame_len();
-        let frames = projected
-            .iter()
-            .zip(layers.chunks_exact(frame_len))
-            .map(|(figures, frame)| (figures.log_frame, frame));
         let stacks = stacks_at(
-            frames,
+            projected
+                .iter()
+                .zip(layers.chunks_exact(frame_len))
+                .map(|(figures, frame)| (figures.log_frame, frame)),
             frame_len,
             self.task.observation.stack,
             self.task.frame_spacing(),
             &approach.frames,
         );
-        stacks
-            .into_iter()
-            .map(|(j, layers)| (layers, projected[j].speed_mps))
-            .collect()
+        // The driven distance along the track from each projected frame to the frame where
+        // its centre crossed the yield line (negative after it), for the rule inputs.
+        let mut arc = Vec::with_capacity(projected.len());
+        let mut length = 0.0;
+        for (j, f) in projected.iter().enumerate() {
+            if let Some(prev) = j.checked_sub(1).map(|i| &projected[i]) {
+                length += (f.x - prev.x).hypot(f.y - prev.y);
+            }
+            arc.push(length);
+        }
+        let crossing_arc = projected
+            .iter()
+            .position(|f| f.log_frame >= approach.crossed_at)
+            .map_or(length, |j| arc[j]);
+        let mut motion = self
+            .task
+            .motion_inputs
+            .then(|| MotionHistory::new(self.task.traffic.step_s));
+        let first = approach.frames.first().copied().unwrap_or(usize::MAX);
+        let mut wanted = stacks.into_iter().peekable();
+        let mut out = Vec::with_capacity(approach.frames.len());
+        for (j, f) in projected.iter().enumerate() {
+            // The episode (and its motion history) begins at the approach's first frame.
+            if f.log_frame < first {
+                continue;
+            }
+            if let Some(history) = &mut motion {
+                if f.log_frame == first {
+                    history.reset(f.speed_mps);
+                } else {
+                    history.push(f.speed_mps);
+                }
+            }
+            let Some((_, layers)) = wanted.next_if(|(at, _)| *at == j) else {
+                continue;
+            };
+            let mut extra = Vec::new();
+            if self.task.rule_inputs {
+                let length_m = frames[f.log_frame]
+                    .actors
+                    .iter()
+                    .find(|a| a.id == approach.track)
+                    .map_or(0.0, |a| a.length_m);
+                let front_to_line = crossing_arc - arc[j] - length_m / 2.0;
+                extra.extend(rule_scalars_of(
+                    nearest_circulating(map, &frames[f.log_frame], approach.track),
+                    front_to_line,
+                    front_to_line < 0.0,
+                ));
+            }
+            if let Some(history) = &motion {
+                extra.extend(history.scalars(self.task.speed_scale_mps));
+            }
+            out.push(FrameInput {
+                layers,
+                speed_mps: f.speed_mps,
+                extra,
+            });
+        }
+        out
     }
 
-    /// The task's observation: the layer stack and its scalars (no last action: all zero),
-    /// the target speed that of an ego of `aggressiveness` in the task.
+    /// The task's observation of `input`, the target speed that of an ego of
+    /// `aggressiveness` in the task, `last` the last action (None: all zero).
     pub(crate) fn observation(
         &self,
-        stack: Vec<u8>,
-        speed: f64,
+        input: &FrameInput,
         aggressiveness: f64,
         last: Option<Action>,
     ) -> Observation {
+        let mut scalars = observation_scalars(
+            input.speed_mps,
+            self.target_speed_mps * self.task.ego_speed_factor(aggressiveness),
+            self.task.speed_scale_mps,
+            aggressiveness,
+            last,
+        );
+        scalars.extend_from_slice(&input.extra);
         Observation {
-            layers: stack,
-            scalars: observation_scalars(
-                speed,
-                self.target_speed_mps * self.task.ego_speed_factor(aggressiveness),
-                self.task.speed_scale_mps,
-                aggressiveness,
-                last,
-            ),
+            layers: input.layers.clone(),
+            scalars,
         }
     }
 
     pub(crate) fn spec(&self) -> ObservationSpec {
-        observation_spec(&self.task.observation)
+        self.task
+            .observation
+            .observation_spec(self.task.scalar_count())
+    }
+
+    /// A closed-loop policy's [`FrameInput`]s, frame after frame of one episode.
+    pub(crate) fn closed_loop_inputs(&self) -> ClosedLoopInputs<'_> {
+        ClosedLoopInputs {
+            views: self,
+            motion: self
+                .task
+                .motion_inputs
+                .then(|| MotionHistory::new(self.task.traffic.step_s)),
+        }
+    }
+}
+
+/// What a policy sees at one log frame: the bird's-eye layer stack, the vehicle's speed,
+/// and the scalar inputs the task adds after the standard ones (rule inputs, motion inputs).
+pub(crate) struct FrameInput {
+    pub(crate) layers: Vec<u8>,
+    pub(crate) speed_mps: f64,
+    pub(crate) extra: Vec<f32>,
+}
+
+/// [`FrameInput`]s of a vehicle driven closed loop: its motion history goes on from view
+/// to view.
+pub(crate) struct ClosedLoopInputs<'a> {
+    views: &'a Views,
+    motion: Option<MotionHistory>,
+}
+
+impl ClosedLoopInputs<'_> {
+    /// The input at `view` (the episode's views in order, the first one first).
+    pub(crate) fn at(
+        &mut self,
+        map: &maps::Map,
+        track: u32,
+        view: &ClosedLoopView<'_>,
+    ) -> FrameInput {
+        let task = &self.views.task;
+        let mut extra = Vec::new();
+        if task.rule_inputs {
+            let front_to_line = view.to_crossing_m - view.frame.actors[view.ego].length_m / 2.0;
+            extra.extend(rule_scalars_of(
+                nearest_circulating(map, view.frame, track),
+                front_to_line,
+                front_to_line < 0.0,
+            ));
+        }
+        if let Some(history) = &mut self.motion {
+            if view.step == 0 {
+                history.reset(view.speed_mps);
+            } else {
+                history.push(view.speed_mps);
+            }
+            extra.extend(history.scalars(task.speed_scale_mps));
+        }
+        FrameInput {
+            layers: view.layers.to_vec(),
+            speed_mps: view.speed_mps,
+            extra,
+        }
     }
 }
 
@@ -532,19 +653,12 @@ fn stacks_at<'a>(
     out
 }
 
-/// Projected logs give the bird's-eye layers and the speed of every log frame (one frame per
-/// world step), not the rule inputs ([`InsertionConfig::rule_inputs`]) nor decisions every
-/// several steps ([`InsertionConfig::action_repeat`]): one clear error for a task that asks
-/// for either. Frames stacked several steps apart ([`InsertionConfig::frame_steps`]) are
-/// stacked that many log frames apart.
+/// Projected logs give the bird's-eye layers, the speed, the rule inputs and the motion
+/// inputs of every log frame (one frame per world step), not decisions every several steps
+/// ([`InsertionConfig::action_repeat`]): one clear error for a task that asks for that.
+/// Frames stacked several steps apart ([`InsertionConfig::frame_steps`]) are stacked that
+/// many log frames apart.
 pub(crate) fn refuse_unprojectable(config: &InsertionConfig, whose: &str) -> Result<()> {
-    if config.rule_inputs {
-        return Err(CliError::new(
-            format!("{whose} has `rule_inputs = true`, which projected logs cannot give"),
-            "use a task without rule inputs (the default) for logs",
-        )
-        .into());
-    }
     if config.action_repeat != 1 {
         return Err(CliError::new(
             format!(
@@ -655,17 +769,15 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             progress.step(&format!("behaviour cloning: reading {}", path.display()));
             let log = read_log(ctx, &map, path, &labels)?;
             for approach in &log.approaches {
-                let stacks = views.stacks(&map, &log.frames, approach);
-                for (i, ((stack, speed), label)) in
-                    stacks.into_iter().zip(&approach.labels).enumerate()
-                {
+                let inputs = views.inputs(&map, &log.frames, approach);
+                for (i, (input, label)) in inputs.iter().zip(&approach.labels).enumerate() {
                     let decision = match label {
                         Decision::Go => true,
                         Decision::Wait => false,
                         Decision::Ambiguous | Decision::Queued => continue,
                     };
                     if i % args.bc_stride.max(1) == 0 {
-                        observations.push(views.observation(stack, speed, BC_AGGRESSIVENESS, None));
+                        observations.push(views.observation(input, BC_AGGRESSIVENESS, None));
                         go.push(decision);
                     }
                 }
@@ -786,14 +898,12 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         if bc.is_none() && agent.is_none() {
             continue;
         }
-        let stacks = views.stacks(&map, &log.frames, approach);
+        let inputs = views.inputs(&map, &log.frames, approach);
         // Behaviour cloning, on each frame as it is.
         if let (Some((network, _)), Some(i)) = (&bc, bc_score) {
-            let observations: Vec<Observation> = stacks
+            let observations: Vec<Observation> = inputs
                 .iter()
-                .map(|(stack, speed)| {
-                    views.observation(stack.clone(), *speed, BC_AGGRESSIVENESS, None)
-                })
+                .map(|input| views.observation(input, BC_AGGRESSIVENESS, None))
                 .collect();
             let goes = bc::predict(network, &observations, &views.spec(), &device);
             score_approach(&mut scores[i], &log.name, approach, &log.frames, &goes);
@@ -803,8 +913,8 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             for (level, score) in levels.iter().zip(&mut scores[first_agent_score..]) {
                 let mut last = Action::Permitted;
                 let mut goes = Vec::new();
-                for (stack, speed) in &stacks {
-                    let observation = views.observation(stack.clone(), *speed, *level, Some(last));
+                for input in &inputs {
+                    let observation = views.observation(input, *level, Some(last));
                     let q = policy.q_values(&[&observation]);
                     last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
                     goes.push(last == Action::Permitted);
@@ -958,13 +1068,10 @@ fn closed_loop(
         });
     }
     if let Some(network) = bc {
+        let mut inputs = views.closed_loop_inputs();
         run(&mut |view: &ClosedLoopView<'_>| {
-            let observation = views.observation(
-                view.layers.to_vec(),
-                view.speed_mps,
-                BC_AGGRESSIVENESS,
-                None,
-            );
+            let input = inputs.at(map, approach.track, view);
+            let observation = views.observation(&input, BC_AGGRESSIVENESS, None);
             let go = bc::predict(network, &[observation], &views.spec(), device);
             if go.first() == Some(&true) {
                 Command::Go
@@ -976,9 +1083,10 @@ fn closed_loop(
     if let Some(policy) = agent {
         for &level in levels {
             let mut last = Action::Permitted;
+            let mut inputs = views.closed_loop_inputs();
             run(&mut |view: &ClosedLoopView<'_>| {
-                let observation =
-                    views.observation(view.layers.to_vec(), view.speed_mps, level, Some(last));
+                let input = inputs.at(map, approach.track, view);
+                let observation = views.observation(&input, level, Some(last));
                 let q = policy.q_values(&[&observation]);
                 last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
                 match last {
@@ -1094,6 +1202,7 @@ fn open_loop_markdown(r: &Report) -> String {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
@@ -1108,6 +1217,92 @@ mod tests {
             spacing,
             &[12, 13, 18],
         )
+    }
+
+    /// The rule and motion inputs of a real recording (FT 000, when `../shared/data` is
+    /// there): along every approach the distance from the front to the yield line falls, to
+    /// minus half the car's length (within a step) at the last frame before its centre
+    /// crosses; it reads as entered exactly when its front is past the line; and the motion
+    /// inputs are the speeds of the frames 0.5, 1 and 2 s before and the slowest so far.
+    #[test]
+    fn logs_give_the_rule_and_motion_inputs_along_each_approach() {
+        use datasets::logs::convert::{ConvertConfig, interaction_to_mcap};
+        use datasets::logs::interaction::read_track_file;
+        use sim::tasks::insertion::{RULE_INPUT_RANGE_M, RULE_SCALARS};
+        let data = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/data/trajectories/interaction");
+        if !data.is_dir() {
+            #[allow(clippy::print_stdout)] // the skip notice the project's data tests print
+            {
+                println!("skipped: ../shared/data is absent");
+            }
+            return;
+        }
+        let map_path = data.join("maps/DR_USA_Roundabout_FT.osm");
+        let map = maps::import_file(&map_path, &maps::ImportOptions::default()).unwrap();
+        let tracks = read_track_file(
+            &data.join("recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_000.csv.gz"),
+        )
+        .unwrap();
+        let tmp = tempfile::tempdir().unwrap();
+        let log_path = tmp.path().join("ft_000.mcap");
+        let file = std::fs::File::create(&log_path).unwrap();
+        interaction_to_mcap(&tracks, &map.projection, &ConvertConfig::default(), file).unwrap();
+        let log = Log::open(&log_path).unwrap();
+        let decoded = read_decoded(&log, &ReadOptions::default()).unwrap();
+        let frames = log_frames(&decoded, None);
+        let task = InsertionConfig {
+            rule_inputs: true,
+            motion_inputs: true,
+            ..InsertionConfig::default()
+        };
+        let scale = task.speed_scale_mps as f32;
+        let views = Views::new(&map, &map_path, task, 8.0).unwrap();
+        let found = approaches(&map, &frames, &LabelConfig::default());
+        assert!(found.len() > 50, "{} approaches", found.len());
+        for approach in found.iter().take(40) {
+            let inputs = views.inputs(&map, &frames, approach);
+            assert_eq!(inputs.len(), approach.frames.len());
+            let to_line: Vec<f32> = inputs
+                .iter()
+                .map(|i| i.extra[1] * RULE_INPUT_RANGE_M as f32)
+                .collect();
+            for w in to_line.windows(2) {
+                assert!(w[1] <= w[0] + 1e-4, "track {}: {to_line:?}", approach.track);
+            }
+            let last = *to_line.last().unwrap();
+            let step = approach.speeds.last().unwrap() * 0.1 + 0.5;
+            let half_length = frames[approach.crossed_at]
+                .actors
+                .iter()
+                .find(|a| a.id == approach.track)
+                .unwrap()
+                .length_m
+                / 2.0;
+            assert!(
+                (f64::from(last) + half_length).abs() <= step,
+                "track {}: front {last} m from the line at the last frame, half length {half_length}",
+                approach.track
+            );
+            for (k, input) in inputs.iter().enumerate() {
+                assert_eq!(input.extra.len(), RULE_SCALARS + 4);
+                assert_eq!(input.extra[2] == 1.0, to_line[k] < 0.0);
+                let speed = |back: usize| (inputs[k.saturating_sub(back)].speed_mps as f32) / scale;
+                let motion = &input.extra[RULE_SCALARS..];
+                for (got, want) in motion.iter().zip([speed(5), speed(10), speed(20)]) {
+                    assert!(
+                        (got - want).abs() < 1e-6,
+                        "track {} frame {k}",
+                        approach.track
+                    );
+                }
+                let slowest = inputs[..=k]
+                    .iter()
+                    .map(|i| i.speed_mps as f32 / scale)
+                    .fold(f32::INFINITY, f32::min);
+                assert!((motion[3] - slowest).abs() < 1e-6);
+            }
+        }
     }
 
     #[test]

@@ -25,6 +25,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+pub use super::motion_inputs::{MOTION_SCALARS, MotionHistory};
 use super::roundabouts::{EgoView, RoundaboutSet, ego_scene};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
@@ -147,8 +148,12 @@ pub struct InsertionConfig {
     /// the distance to the nearest circulating vehicle and from the ego's front to its
     /// yield line, both over [`RULE_INPUT_RANGE_M`], and whether the ego has entered. Off by
     /// default: the study's agent sees the ring only in the bird's-eye layers. Projected
-    /// logs do not provide these inputs.
+    /// logs give them too (from the vehicle's recorded track and the other road users).
     pub rule_inputs: bool,
+    /// Adds the ego's own recent motion to the scalar inputs, after the rule inputs
+    /// ([`MOTION_SCALARS`], [`super::motion_inputs`]): its speed 0.5, 1 and 2 s ago and the
+    /// slowest it has been this episode, over `speed_scale_mps`. Off by default.
+    pub motion_inputs: bool,
     /// World steps (`traffic.step_s` each) per decision: the action is held and the rewards
     /// summed over them, and a frame is drawn once per decision, so the frame stack spans
     /// `action_repeat` steps per frame. 1 (the default) decides every step, as the study did.
@@ -197,6 +202,17 @@ impl InsertionConfig {
         }
     }
 
+    /// The number of scalar inputs: [`SCALARS`], plus the rule and motion inputs when on.
+    pub fn scalar_count(&self) -> usize {
+        SCALARS
+            + if self.rule_inputs { RULE_SCALARS } else { 0 }
+            + if self.motion_inputs {
+                MOTION_SCALARS
+            } else {
+                0
+            }
+    }
+
     /// How many drawn frames apart the stacked ones are.
     pub fn frame_spacing(&self) -> usize {
         match self.frame_steps {
@@ -226,6 +242,7 @@ impl Default for InsertionConfig {
             caution_band_mps: 0.5,
             speed_scale_mps: 15.0,
             rule_inputs: false,
+            motion_inputs: false,
             action_repeat: 1,
             frame_steps: None,
             ego_style_from_aggressiveness: false,
@@ -273,11 +290,24 @@ pub fn observation_scalars(
 /// from the ego's front to its yield line over [`RULE_INPUT_RANGE_M`], clamped to [0, 1] and
 /// [-1, 1] (an empty ring reads 1), and 1 once the ego has entered.
 pub fn rule_scalars(state: &InsertionState) -> [f32; RULE_SCALARS] {
+    rule_scalars_of(
+        state.nearest_circulating_m,
+        state.to_yield_line_m,
+        state.ego_entered,
+    )
+}
+
+/// [`rule_scalars`] of the three facts, wherever they come from (logs give them too).
+pub fn rule_scalars_of(
+    nearest_circulating_m: f64,
+    to_yield_line_m: f64,
+    entered: bool,
+) -> [f32; RULE_SCALARS] {
     let scaled = |m: f64| (m / RULE_INPUT_RANGE_M).clamp(-1.0, 1.0) as f32;
     [
-        scaled(state.nearest_circulating_m).max(0.0),
-        scaled(state.to_yield_line_m),
-        if state.ego_entered { 1.0 } else { 0.0 },
+        scaled(nearest_circulating_m).max(0.0),
+        scaled(to_yield_line_m),
+        if entered { 1.0 } else { 0.0 },
     ]
 }
 
@@ -319,12 +349,9 @@ impl InsertionSetup {
     }
 
     pub fn observation_spec(&self) -> ObservationSpec {
-        let rule = if self.config.rule_inputs {
-            RULE_SCALARS
-        } else {
-            0
-        };
-        self.config.observation.observation_spec(SCALARS + rule)
+        self.config
+            .observation
+            .observation_spec(self.config.scalar_count())
     }
 }
 
@@ -438,6 +465,8 @@ pub struct RoundaboutInsertion {
     outcome: Option<Outcome>,
     trajectory: Vec<Point>,
     view: EgoView,
+    /// The ego's speeds this episode, for [`InsertionConfig::motion_inputs`].
+    motion: MotionHistory,
     /// The ego's following model: IDM with the parameters of a driver of aggressiveness 0.5,
     /// or of the ego's own with [`InsertionConfig::ego_style_from_aggressiveness`].
     follower: Driver,
@@ -448,6 +477,7 @@ impl RoundaboutInsertion {
         let config = setup.config.clone();
         let view = EgoView::spaced(&config.observation, config.frame_spacing());
         let follower = Driver::new(&config.traffic.drivers, 0.5);
+        let motion = MotionHistory::new(config.traffic.step_s);
         RoundaboutInsertion {
             setup,
             config,
@@ -470,6 +500,7 @@ impl RoundaboutInsertion {
             outcome: None,
             trajectory: Vec::new(),
             view,
+            motion,
             follower,
         }
     }
@@ -675,6 +706,9 @@ impl RoundaboutInsertion {
         if self.config.rule_inputs {
             scalars.extend(rule_scalars(&self.state()));
         }
+        if self.config.motion_inputs {
+            scalars.extend(self.motion.scalars(self.config.speed_scale_mps));
+        }
         Observation { layers, scalars }
     }
 
@@ -833,8 +867,9 @@ impl Env for RoundaboutInsertion {
         self.outcome = None;
         self.trajectory.clear();
         if let Some((w, e)) = self.world_and_ego() {
-            let p = w.vehicles()[e].position;
+            let (p, v) = (w.vehicles()[e].position, w.vehicles()[e].speed);
             self.trajectory.push(p);
+            self.motion.reset(v);
         }
         self.render(true);
         self.observation()
@@ -901,6 +936,7 @@ impl RoundaboutInsertion {
         };
         self.speed_sum += speed;
         self.trajectory.push(position);
+        self.motion.push(speed);
         let elapsed = world.time_s() - self.start_time_s;
         let just_entered = committed && self.entered_at_s.is_none();
         if just_entered {

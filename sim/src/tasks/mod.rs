@@ -8,6 +8,7 @@
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
 
 pub mod insertion;
+pub mod motion_inputs;
 pub mod obstacle;
 pub mod ring_driving;
 pub mod roundabouts;

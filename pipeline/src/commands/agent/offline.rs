@@ -137,18 +137,18 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         let log = read_log(ctx, &map, path, &labels)?;
         for approach in &log.approaches {
             let approach = &through_the_ring(approach, &log.frames);
-            let stacks = views.stacks(&map, &log.frames, approach);
+            let inputs = views.inputs(&map, &log.frames, approach);
             let actions: Vec<Option<Action>> =
                 approach.labels.iter().map(|&l| driver_action(l)).collect();
-            let mut observations = Vec::with_capacity(stacks.len());
-            let mut rewards = Vec::with_capacity(stacks.len());
+            let mut observations = Vec::with_capacity(inputs.len());
+            let mut rewards = Vec::with_capacity(inputs.len());
             let mut previous = None;
-            for (i, ((stack, speed), action)) in stacks.into_iter().zip(&actions).enumerate() {
-                observations.push(views.observation(stack, speed, LOGGED_AGGRESSIVENESS, previous));
+            for (i, (input, action)) in inputs.iter().zip(&actions).enumerate() {
+                observations.push(views.observation(input, LOGGED_AGGRESSIVENESS, previous));
                 let last = i + 1 == actions.len();
                 rewards.push(logged_reward(
                     &task_config.reward,
-                    speed / args.target_speed,
+                    input.speed_mps / args.target_speed,
                     previous,
                     *action,
                     last,
