@@ -101,8 +101,6 @@ pub struct ClosedLoopView<'a> {
     /// The bird's-eye frames, oldest first (the renderer's stack).
     pub layers: &'a [u8],
     pub speed_mps: f64,
-    /// The views of this episode before this one (0 at its first).
-    pub step: usize,
     /// Along the driver's path from the vehicle's centre to where the driver's centre
     /// crossed the yield line (negative past it), m.
     pub to_crossing_m: f64,
@@ -231,7 +229,6 @@ pub fn drive(
             ego,
             layers: &layers,
             speed_mps: speed,
-            step: steps,
             to_crossing_m: crossing_s - s,
         });
         // Move to the next frame.

@@ -38,7 +38,7 @@ use models::policy::QPolicy;
 use serde::{Deserialize, Serialize};
 use sim::render::{BevConfig, BevRenderer, FrameStack};
 use sim::tasks::insertion::{
-    Action, InsertionConfig, MotionHistory, observation_scalars, rule_scalars_of,
+    Action, InsertionConfig, MotionHistory, RULE_SCALARS, observation_scalars, rule_scalars_of,
 };
 use sim::{Observation, ObservationSpec};
 
@@ -486,6 +486,7 @@ impl Views {
             .iter()
             .position(|f| f.log_frame >= approach.crossed_at)
             .map_or(length, |j| arc[j]);
+        // The episode (and its motion history) begins at the approach's first frame.
         let mut motion = self
             .task
             .motion_inputs
@@ -494,32 +495,29 @@ impl Views {
         let mut wanted = stacks.into_iter().peekable();
         let mut out = Vec::with_capacity(approach.frames.len());
         for (j, f) in projected.iter().enumerate() {
-            // The episode (and its motion history) begins at the approach's first frame.
             if f.log_frame < first {
                 continue;
             }
             if let Some(history) = &mut motion {
-                if f.log_frame == first {
-                    history.reset(f.speed_mps);
-                } else {
-                    history.push(f.speed_mps);
-                }
+                history.push(f.speed_mps);
             }
             let Some((_, layers)) = wanted.next_if(|(at, _)| *at == j) else {
                 continue;
             };
             let mut extra = Vec::new();
             if self.task.rule_inputs {
-                let length_m = frames[f.log_frame]
+                let frame = &frames[f.log_frame];
+                let length_m = frame
                     .actors
                     .iter()
                     .find(|a| a.id == approach.track)
                     .map_or(0.0, |a| a.length_m);
-                let front_to_line = crossing_arc - arc[j] - length_m / 2.0;
-                extra.extend(rule_scalars_of(
-                    nearest_circulating(map, &frames[f.log_frame], approach.track),
-                    front_to_line,
-                    front_to_line < 0.0,
+                extra.extend(log_rule_scalars(
+                    map,
+                    frame,
+                    approach.track,
+                    crossing_arc - arc[j],
+                    length_m,
                 ));
             }
             if let Some(history) = &motion {
@@ -538,7 +536,7 @@ impl Views {
     /// `aggressiveness` in the task, `last` the last action (None: all zero).
     pub(crate) fn observation(
         &self,
-        input: &FrameInput,
+        input: FrameInput,
         aggressiveness: f64,
         last: Option<Action>,
     ) -> Observation {
@@ -551,7 +549,7 @@ impl Views {
         );
         scalars.extend_from_slice(&input.extra);
         Observation {
-            layers: input.layers.clone(),
+            layers: input.layers,
             scalars,
         }
     }
@@ -562,7 +560,8 @@ impl Views {
             .observation_spec(self.task.scalar_count())
     }
 
-    /// A closed-loop policy's [`FrameInput`]s, frame after frame of one episode.
+    /// A closed-loop policy's [`FrameInput`]s, frame after frame of one episode (a new one
+    /// for each episode: the motion history starts empty).
     pub(crate) fn closed_loop_inputs(&self) -> ClosedLoopInputs<'_> {
         ClosedLoopInputs {
             views: self,
@@ -574,8 +573,27 @@ impl Views {
     }
 }
 
+/// The rule inputs of `track` in `frame` ([`rule_scalars_of`]): the nearest vehicle on the
+/// ring, and its front's distance to the yield line from its centre's distance along its
+/// path to where the driver's centre crossed it (`centre_to_crossing_m`, negative past it).
+fn log_rule_scalars(
+    map: &maps::Map,
+    frame: &LogFrame,
+    track: u32,
+    centre_to_crossing_m: f64,
+    length_m: f64,
+) -> [f32; RULE_SCALARS] {
+    let front_to_line = centre_to_crossing_m - length_m / 2.0;
+    rule_scalars_of(
+        nearest_circulating(map, frame, track),
+        front_to_line,
+        front_to_line < 0.0,
+    )
+}
+
 /// What a policy sees at one log frame: the bird's-eye layer stack, the vehicle's speed,
 /// and the scalar inputs the task adds after the standard ones (rule inputs, motion inputs).
+#[derive(Clone)]
 pub(crate) struct FrameInput {
     pub(crate) layers: Vec<u8>,
     pub(crate) speed_mps: f64,
@@ -600,19 +618,16 @@ impl ClosedLoopInputs<'_> {
         let task = &self.views.task;
         let mut extra = Vec::new();
         if task.rule_inputs {
-            let front_to_line = view.to_crossing_m - view.frame.actors[view.ego].length_m / 2.0;
-            extra.extend(rule_scalars_of(
-                nearest_circulating(map, view.frame, track),
-                front_to_line,
-                front_to_line < 0.0,
+            extra.extend(log_rule_scalars(
+                map,
+                view.frame,
+                track,
+                view.to_crossing_m,
+                view.frame.actors[view.ego].length_m,
             ));
         }
         if let Some(history) = &mut self.motion {
-            if view.step == 0 {
-                history.reset(view.speed_mps);
-            } else {
-                history.push(view.speed_mps);
-            }
+            history.push(view.speed_mps);
             extra.extend(history.scalars(task.speed_scale_mps));
         }
         FrameInput {
@@ -770,7 +785,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             let log = read_log(ctx, &map, path, &labels)?;
             for approach in &log.approaches {
                 let inputs = views.inputs(&map, &log.frames, approach);
-                for (i, (input, label)) in inputs.iter().zip(&approach.labels).enumerate() {
+                for (i, (input, label)) in inputs.into_iter().zip(&approach.labels).enumerate() {
                     let decision = match label {
                         Decision::Go => true,
                         Decision::Wait => false,
@@ -903,7 +918,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         if let (Some((network, _)), Some(i)) = (&bc, bc_score) {
             let observations: Vec<Observation> = inputs
                 .iter()
-                .map(|input| views.observation(input, BC_AGGRESSIVENESS, None))
+                .map(|input| views.observation(input.clone(), BC_AGGRESSIVENESS, None))
                 .collect();
             let goes = bc::predict(network, &observations, &views.spec(), &device);
             score_approach(&mut scores[i], &log.name, approach, &log.frames, &goes);
@@ -914,7 +929,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
                 let mut last = Action::Permitted;
                 let mut goes = Vec::new();
                 for input in &inputs {
-                    let observation = views.observation(input, *level, Some(last));
+                    let observation = views.observation(input.clone(), *level, Some(last));
                     let q = policy.q_values(&[&observation]);
                     last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
                     goes.push(last == Action::Permitted);
@@ -1071,7 +1086,7 @@ fn closed_loop(
         let mut inputs = views.closed_loop_inputs();
         run(&mut |view: &ClosedLoopView<'_>| {
             let input = inputs.at(map, approach.track, view);
-            let observation = views.observation(&input, BC_AGGRESSIVENESS, None);
+            let observation = views.observation(input, BC_AGGRESSIVENESS, None);
             let go = bc::predict(network, &[observation], &views.spec(), device);
             if go.first() == Some(&true) {
                 Command::Go
@@ -1086,7 +1101,7 @@ fn closed_loop(
             let mut inputs = views.closed_loop_inputs();
             run(&mut |view: &ClosedLoopView<'_>| {
                 let input = inputs.at(map, approach.track, view);
-                let observation = views.observation(&input, level, Some(last));
+                let observation = views.observation(input, level, Some(last));
                 let q = policy.q_values(&[&observation]);
                 last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
                 match last {
@@ -1228,7 +1243,7 @@ mod tests {
     fn logs_give_the_rule_and_motion_inputs_along_each_approach() {
         use datasets::logs::convert::{ConvertConfig, interaction_to_mcap};
         use datasets::logs::interaction::read_track_file;
-        use sim::tasks::insertion::{RULE_INPUT_RANGE_M, RULE_SCALARS};
+        use sim::tasks::insertion::RULE_INPUT_RANGE_M;
         let data = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../shared/data/trajectories/interaction");
         if !data.is_dir() {

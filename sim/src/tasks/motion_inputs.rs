@@ -37,14 +37,14 @@ impl MotionHistory {
         }
     }
 
-    /// Starts an episode at `speed_mps`.
+    /// Starts an episode over at `speed_mps`, forgetting the one before.
     pub fn reset(&mut self, speed_mps: f64) {
         self.speeds.clear();
         self.slowest = f64::INFINITY;
         self.push(speed_mps);
     }
 
-    /// The speed one step later.
+    /// The speed one step later; on an empty history, the episode's first.
     pub fn push(&mut self, speed_mps: f64) {
         let keep = self.lookback_steps[LOOKBACK_S.len() - 1] + 1;
         if self.speeds.len() == keep {
@@ -56,7 +56,7 @@ impl MotionHistory {
 
     /// The inputs over `speed_scale_mps`: the speed each lookback ago (the first speed of
     /// the episode while it is younger than that), then the slowest since it began. All zero
-    /// before the first [`MotionHistory::reset`].
+    /// on an empty history.
     pub fn scalars(&self, speed_scale_mps: f64) -> [f32; MOTION_SCALARS] {
         let mut out = [0.0f32; MOTION_SCALARS];
         let Some(&oldest) = self.speeds.front() else {

@@ -143,12 +143,13 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             let mut observations = Vec::with_capacity(inputs.len());
             let mut rewards = Vec::with_capacity(inputs.len());
             let mut previous = None;
-            for (i, (input, action)) in inputs.iter().zip(&actions).enumerate() {
+            for (i, (input, action)) in inputs.into_iter().zip(&actions).enumerate() {
+                let speed = input.speed_mps;
                 observations.push(views.observation(input, LOGGED_AGGRESSIVENESS, previous));
                 let last = i + 1 == actions.len();
                 rewards.push(logged_reward(
                     &task_config.reward,
-                    input.speed_mps / args.target_speed,
+                    speed / args.target_speed,
                     previous,
                     *action,
                     last,
