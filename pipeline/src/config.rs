@@ -150,4 +150,30 @@ mod tests {
         }
         Ok(())
     }
+
+    /// The segmenter settings of `docs/configs` (`segmenter train --settings FILE`) must
+    /// still read as a training config and pass its checks.
+    #[test]
+    fn every_documented_segmenter_settings_file_reads_and_validates() -> Result<(), String> {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/configs");
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .map_err(|e| format!("{}: {e}", dir.display()))?
+            .filter_map(|entry| entry.ok().map(|e| e.path()))
+            .filter(|path| path.extension().is_some_and(|ext| ext == "json"))
+            .collect();
+        files.sort();
+        assert!(
+            !files.is_empty(),
+            "no segmenter settings in {}",
+            dir.display()
+        );
+        for file in &files {
+            let config = models::segmenter::train::load_training_config(file)
+                .map_err(|e| format!("{}: {e}", file.display()))?;
+            config
+                .validate()
+                .map_err(|e| format!("{}: {e}", file.display()))?;
+        }
+        Ok(())
+    }
 }
