@@ -128,18 +128,24 @@ mod tests {
         Ok(())
     }
 
-    /// The files of `docs/configs` are how the docs' results are rerun: a renamed key or a
-    /// removed option must fail here, not months later in someone's hour-long training run.
-    #[test]
-    fn every_documented_config_file_reads_and_its_dqn_settings_validate() -> Result<(), String> {
+    /// The files of `docs/configs` whose name ends in `.ext`, sorted.
+    fn documented_configs(ext: &str) -> Result<Vec<PathBuf>, String> {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/configs");
         let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
             .map_err(|e| format!("{}: {e}", dir.display()))?
             .filter_map(|entry| entry.ok().map(|e| e.path()))
-            .filter(|path| path.extension().is_some_and(|ext| ext == "toml"))
+            .filter(|path| path.extension().is_some_and(|e| e == ext))
             .collect();
         files.sort();
-        assert!(!files.is_empty(), "no config files in {}", dir.display());
+        Ok(files)
+    }
+
+    /// The files of `docs/configs` are how the docs' results are rerun: a renamed key or a
+    /// removed option must fail here, not months later in someone's hour-long training run.
+    #[test]
+    fn every_documented_config_file_reads_and_its_dqn_settings_validate() -> Result<(), String> {
+        let files = documented_configs("toml")?;
+        assert!(!files.is_empty(), "no config files in docs/configs");
         for file in &files {
             let config = Config::load(Some(file)).map_err(|e| format!("{e:#}"))?;
             config
@@ -155,18 +161,8 @@ mod tests {
     /// still read as a training config and pass its checks.
     #[test]
     fn every_documented_segmenter_settings_file_reads_and_validates() -> Result<(), String> {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/configs");
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
-            .map_err(|e| format!("{}: {e}", dir.display()))?
-            .filter_map(|entry| entry.ok().map(|e| e.path()))
-            .filter(|path| path.extension().is_some_and(|ext| ext == "json"))
-            .collect();
-        files.sort();
-        assert!(
-            !files.is_empty(),
-            "no segmenter settings in {}",
-            dir.display()
-        );
+        let files = documented_configs("json")?;
+        assert!(!files.is_empty(), "no segmenter settings in docs/configs");
         for file in &files {
             let config = models::segmenter::train::load_training_config(file)
                 .map_err(|e| format!("{}: {e}", file.display()))?;
