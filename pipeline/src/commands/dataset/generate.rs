@@ -77,6 +77,11 @@ pub struct GenerateArgs {
     #[arg(long, value_name = "SHARE")]
     pub crossing_share: Option<f64>,
 
+    /// Road users (vehicles and pedestrians) stand within this distance of the camera,
+    /// metres [default: 70]; a shorter range gives nearer, larger people and cars.
+    #[arg(long, value_name = "M")]
+    pub range: Option<f64>,
+
     /// Also write the top-down label view of each scene (topdown/<id>.png, ego-centred).
     #[arg(long)]
     pub topdown: bool,
@@ -132,6 +137,9 @@ pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
     }
     if let Some(v) = args.crossing_share {
         config.traffic.crossing_share = v;
+    }
+    if let Some(v) = args.range {
+        config.traffic.range_m = v;
     }
     if args.topdown {
         config.topdown = Some(TopdownConfig::default());
@@ -410,6 +418,10 @@ mod tests {
         config.traffic.crossing_share = 1.5;
         assert!(config.check().is_err());
         config.traffic.crossing_share = 0.6;
+        assert!(config.check().is_ok());
+        config.traffic.range_m = 0.0;
+        assert!(config.check().is_err());
+        config.traffic.range_m = 25.0;
         assert!(config.check().is_ok());
     }
 }
