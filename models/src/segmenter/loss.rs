@@ -21,12 +21,21 @@
 //! `Σ w[y]·loss / Σ w[y]` over counted pixels, as PyTorch's `CrossEntropyLoss(weight=...)`.
 //! Evaluation applies the same rule to predictions (see `eval`).
 //!
+//! [`hard_pixel_loss`], optional (`TrainingConfig::hard_pixels`), is the same cross-entropy
+//! over the hard pixels only (online hard-example mining, as BiSeNet's and
+//! mmsegmentation's OHEM): those whose probability of an acceptable class is under
+//! [`HardPixels::probability`], and never fewer than [`HardPixels::min_share`] of the counted
+//! pixels, the hardest first. The easy pixels, most of the road and the sky once they are
+//! learnt, then stop diluting the gradient of the people, the vehicles' outlines and the
+//! markings.
+//!
 //! [`dice_loss`], optional (`TrainingConfig::dice_weight`), is the soft Dice loss of
 //! segmentation_models.pytorch: per class, `1 − 2 Σ p·t / (Σ p + Σ t)` over the batch's
 //! pixels, averaged over the classes the batch's labels hold. It weighs each class by its
 //! overlap rather than its pixel count, as IoU does. Only pixels with exactly one acceptable
 //! class count in it (a pixel a source may have merged, road on CamVid, does not).
 
+use burn::config::Config;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use datasets::IGNORE;
@@ -40,6 +49,8 @@ pub struct LossTargets {
     pub weights: Tensor<3>,
     /// Σ weights, so the mean needs no reduction on the device.
     pub weight_sum: f64,
+    /// `weights` on the host, row-major (for [`hard_pixel_loss`]'s threshold).
+    pub host_weights: Vec<f32>,
     /// `[B, 1, H, W]`: 1 where the pixel has exactly one acceptable class (for [`dice_loss`]).
     pub single: Tensor<4>,
     /// `[classes]`: 1 for the classes some `single` pixel is labelled with.
@@ -101,8 +112,12 @@ impl LossTargets {
                 TensorData::new(allowed, [labels.len(), classes, h, w]),
                 device,
             ),
-            weights: Tensor::from_data(TensorData::new(weights, [labels.len(), h, w]), device),
+            weights: Tensor::from_data(
+                TensorData::new(weights.clone(), [labels.len(), h, w]),
+                device,
+            ),
             weight_sum,
+            host_weights: weights,
             single: Tensor::from_data(TensorData::new(single, [labels.len(), 1, h, w]), device),
             present: Tensor::from_data(TensorData::new(present, [classes]), device),
         }
@@ -112,15 +127,91 @@ impl LossTargets {
 /// The weighted, merged cross-entropy of the module docs:
 /// `logits [B, classes, H, W]` with `targets` -> a scalar `[1]`.
 pub fn segmentation_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> {
+    let per_pixel = pixel_losses(logits, targets);
+    weighted_mean(per_pixel, targets.weights.clone(), targets.weight_sum)
+}
+
+/// Which pixels [`hard_pixel_loss`] keeps.
+#[derive(Config, Debug, PartialEq)]
+pub struct HardPixels {
+    /// A pixel is hard while its probability of an acceptable class is under this
+    /// (BiSeNet's and mmsegmentation's 0.7).
+    #[config(default = 0.7)]
+    pub probability: f64,
+    /// Share of the counted pixels kept at least, the hardest (BiSeNet's 1/16).
+    #[config(default = 0.0625)]
+    pub min_share: f64,
+}
+
+impl HardPixels {
+    /// Whether the two numbers are shares in (0, 1].
+    pub fn is_valid(&self) -> bool {
+        let share = |v: f64| v.is_finite() && v > 0.0 && v <= 1.0;
+        share(self.probability) && share(self.min_share)
+    }
+
+    /// The loss from which a pixel counts: `−ln(probability)`, lowered to the loss of the
+    /// `ceil(min_share · n)`-th hardest of the `n` counted pixels when fewer are over it.
+    /// `None` when no pixel counts.
+    fn threshold(&self, losses: &[f32], weights: &[f32]) -> Option<f32> {
+        let mut counted: Vec<f32> = losses
+            .iter()
+            .zip(weights)
+            .filter(|&(_, &w)| w > 0.0)
+            .map(|(&l, _)| l)
+            .collect();
+        if counted.is_empty() {
+            return None;
+        }
+        let k = ((self.min_share * counted.len() as f64).ceil() as usize).clamp(1, counted.len());
+        let (_, kth, _) = counted.select_nth_unstable_by(k - 1, |a, b| b.total_cmp(a));
+        Some((-self.probability.ln() as f32).min(*kth))
+    }
+}
+
+/// The cross-entropy of [`segmentation_loss`] over the hard pixels of `hard` only (module
+/// docs): `logits [B, classes, H, W]` with `targets` -> a scalar `[1]`. Reads the pixel
+/// losses back to the host once, to find the threshold.
+pub fn hard_pixel_loss(logits: Tensor<4>, targets: &LossTargets, hard: &HardPixels) -> Tensor<1> {
+    let per_pixel = pixel_losses(logits, targets);
+    let losses = per_pixel
+        .clone()
+        .detach()
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap_or_default();
+    let Some(threshold) = hard.threshold(&losses, &targets.host_weights) else {
+        return weighted_mean(per_pixel, targets.weights.clone(), 0.0);
+    };
+    let kept_sum: f64 = losses
+        .iter()
+        .zip(&targets.host_weights)
+        .filter(|&(&l, _)| l >= threshold)
+        .map(|(_, &w)| f64::from(w))
+        .sum();
+    let kept = per_pixel
+        .clone()
+        .detach()
+        .greater_equal_elem(threshold)
+        .float();
+    weighted_mean(per_pixel, targets.weights.clone() * kept, kept_sum)
+}
+
+/// `[B, H, W]`: each pixel's merged cross-entropy (module docs), 0 where ignored.
+fn pixel_losses(logits: Tensor<4>, targets: &LossTargets) -> Tensor<3> {
     let max = logits.clone().max_dim(1).detach();
     let exp = (logits - max).exp();
     let all = exp.clone().sum_dim(1);
     // Clamped so an allowed set whose logits underflow gives a large, finite loss.
     let allowed = (exp * targets.allowed.clone()).sum_dim(1).clamp_min(1e-30);
-    let per_pixel: Tensor<3> = (all.log() - allowed.log()).squeeze_dim(1);
-    let weighted = (per_pixel * targets.weights.clone()).sum();
-    if targets.weight_sum > 0.0 {
-        weighted.div_scalar(targets.weight_sum)
+    (all.log() - allowed.log()).squeeze_dim(1)
+}
+
+/// `Σ weights · losses / weight_sum`, 0 (not NaN) when nothing counts.
+fn weighted_mean(losses: Tensor<3>, weights: Tensor<3>, weight_sum: f64) -> Tensor<1> {
+    let weighted = (losses * weights).sum();
+    if weight_sum > 0.0 {
+        weighted.div_scalar(weight_sum)
     } else {
         weighted.mul_scalar(0.0)
     }
@@ -254,6 +345,66 @@ mod tests {
             &device(),
         );
         assert_eq!(scalar(segmentation_loss(logits(), &t)), 0.0);
+    }
+
+    #[test]
+    fn hard_pixels_keep_the_unsure_pixels_and_at_least_the_hardest_share() {
+        // Pixels 0 (class 0, weight 1), 1 (class 1, weight 2) and 3 (class 0, weight 1)
+        // count; pixel 2 is ignored.
+        let labels = [0u8, 1, 255, 0];
+        let weights = [1.0f32, 2.0, 1.0];
+        let targets = LossTargets::new(
+            &[LabelRef {
+                pixels: &labels,
+                unlabelable: &[false; 3],
+            }],
+            [1, 4],
+            &weights,
+            &device(),
+        );
+        let logp = log_softmax(logits(), 1)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap_or_default();
+        let loss_of = [-logp[0], -logp[4 + 1], -logp[3]];
+        // Pixel 3's class-0 logit is 0 against 4 for class 2: by far the hardest.
+        assert!(loss_of[2] > loss_of[0] && loss_of[2] > loss_of[1]);
+        let hard = |probability: f64, min_share: f64| {
+            let h = HardPixels::new()
+                .with_probability(probability)
+                .with_min_share(min_share);
+            assert!(h.is_valid());
+            scalar(hard_pixel_loss(logits(), &targets, &h))
+        };
+        // Probability 1: every pixel is unsure, so it is the plain loss.
+        let plain = scalar(segmentation_loss(logits(), &targets));
+        assert!((hard(1.0, 0.1) - plain).abs() < 1e-6);
+        // A threshold no pixel reaches keeps the hardest third: pixel 3 alone.
+        assert!((hard(1e-9, 0.3) - loss_of[2]).abs() < 1e-5);
+        // A probability between pixel 0's and pixel 1's keeps the harder of them and pixel 3,
+        // weighted as the plain loss weighs them.
+        let p = |i: usize| (-loss_of[i]).exp();
+        let (easy, harder) = if p(0) > p(1) { (0, 1) } else { (1, 0) };
+        let between = f64::from((p(easy) + p(harder)) / 2.0);
+        let w = |i: usize| [1.0f32, 2.0, 1.0][i];
+        let expected = (w(harder) * loss_of[harder] + loss_of[2]) / (w(harder) + 1.0);
+        let got = hard(between, 0.01);
+        assert!((got - expected).abs() < 1e-5, "{got} vs {expected}");
+        // Nothing counted: zero, not NaN.
+        let t = LossTargets::new(
+            &[LabelRef {
+                pixels: &[255u8; 4],
+                unlabelable: &[false; 3],
+            }],
+            [1, 4],
+            &weights,
+            &device(),
+        );
+        let none = scalar(hard_pixel_loss(logits(), &t, &HardPixels::new()));
+        assert_eq!(none, 0.0);
+        // Shares outside (0, 1] are refused.
+        assert!(!HardPixels::new().with_probability(0.0).is_valid());
+        assert!(!HardPixels::new().with_min_share(1.5).is_valid());
     }
 
     #[test]

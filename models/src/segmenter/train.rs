@@ -41,7 +41,9 @@ use super::error::{Result, SegmenterError};
 use super::eval::{Prediction, class_names, evaluate};
 use super::files::{load_record, save_model, save_record, write_atomic};
 use super::infer::{Inference, normalise};
-use super::loss::{LabelRef, LossTargets, dice_loss, segmentation_loss};
+use super::loss::{
+    HardPixels, LabelRef, LossTargets, dice_loss, hard_pixel_loss, segmentation_loss,
+};
 use super::metrics::MetricsSummary;
 use super::model::{PspNet, PspNetConfig};
 
@@ -106,6 +108,10 @@ pub struct TrainingConfig {
     /// Weight of the soft Dice loss added to the cross-entropy (0: cross-entropy alone).
     #[config(default = 0.0)]
     pub dice_weight: f64,
+    /// The main head's cross-entropy over the hard pixels only (`loss::hard_pixel_loss`)
+    /// [default: every pixel].
+    #[config(default = "None")]
+    pub hard_pixels: Option<HardPixels>,
     /// Decay of an exponential moving average of the weights, which is then what is
     /// validated and saved as the best model (0: off, the trained weights themselves).
     /// Early steps use `min(decay, (1 + n) / (10 + n))` after `n` steps, so the average
@@ -158,6 +164,14 @@ impl TrainingConfig {
             return bad(format!(
                 "dice weight must be 0 or more, not {}",
                 self.dice_weight
+            ));
+        }
+        if let Some(hard) = &self.hard_pixels
+            && !hard.is_valid()
+        {
+            return bad(format!(
+                "hard pixels need a probability and a minimum share in (0, 1], not {} and {}",
+                hard.probability, hard.min_share
             ));
         }
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
@@ -551,7 +565,7 @@ impl WeightAverage {
 }
 
 /// The loss of one batch: `[B, 3, crop, crop]` images through the network, the merged
-/// cross-entropy of the main head, plus `dice_weight` times its Dice loss, plus `aux_weight`
+/// cross-entropy of the main head (over its hard pixels with `hard_pixels`), plus `dice_weight` times its Dice loss, plus `aux_weight`
 /// times the aux head's cross-entropy.
 fn batch_loss(
     model: &PspNet,
@@ -574,7 +588,10 @@ fn batch_loss(
     let side = config.crop as usize;
     let targets = LossTargets::new(&labels, [side, side], class_weights, device);
     let heads = model.forward_train(input, derive_seed(config.seed, STAGE_DROPOUT, micro_step));
-    let mut loss = segmentation_loss(heads.logits.clone(), &targets);
+    let mut loss = match &config.hard_pixels {
+        Some(hard) => hard_pixel_loss(heads.logits.clone(), &targets, hard),
+        None => segmentation_loss(heads.logits.clone(), &targets),
+    };
     if config.dice_weight > 0.0 {
         loss = loss + dice_loss(heads.logits, &targets).mul_scalar(config.dice_weight);
     }

@@ -6,6 +6,7 @@ use anyhow::Result;
 use clap::{Args, ValueEnum};
 use models::segmenter::PspNetConfig;
 use models::segmenter::data::{SourceSpec, Split};
+use models::segmenter::loss::HardPixels;
 use models::segmenter::train::{
     StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, load_training_config, train,
 };
@@ -91,6 +92,12 @@ pub struct TrainArgs {
     /// Weight of a soft Dice loss added to the cross-entropy [default: 0, cross-entropy alone].
     #[arg(long, value_name = "W")]
     pub dice_weight: Option<f64>,
+
+    /// Train the main head's cross-entropy on the hard pixels only (online hard-example
+    /// mining): those whose probability of their class is under PROBABILITY (e.g. 0.7), and
+    /// at least the hardest 1/16 [default: every pixel].
+    #[arg(long, value_name = "PROBABILITY")]
+    pub hard_pixels: Option<f64>,
 
     /// Share of the crops placed around a pixel of a class drawn uniformly among those the
     /// image holds, so rare small objects are cropped in more often [default: 0, uniform].
@@ -208,6 +215,10 @@ impl TrainArgs {
         set(&mut c.crop, self.crop);
         set(&mut c.dice_weight, self.dice_weight);
         set(&mut c.balanced_crops, self.balanced_crops);
+        if let Some(probability) = self.hard_pixels {
+            let hard = c.hard_pixels.take().unwrap_or_else(HardPixels::new);
+            c.hard_pixels = Some(hard.with_probability(probability));
+        }
         set(&mut c.ema_decay, self.ema_decay);
         c.bf16_convolutions |= self.bf16_convolutions;
         if self.samples_per_epoch.is_some() {
