@@ -183,18 +183,15 @@ pub fn hard_pixel_loss(logits: Tensor<4>, targets: &LossTargets, hard: &HardPixe
     let Some(threshold) = hard.threshold(&losses, &targets.host_weights) else {
         return weighted_mean(per_pixel, targets.weights.clone(), 0.0);
     };
-    let kept_sum: f64 = losses
+    // The host decides which pixels count, so the weights and their sum agree exactly.
+    let kept: Vec<f32> = losses
         .iter()
         .zip(&targets.host_weights)
-        .filter(|&(&l, _)| l >= threshold)
-        .map(|(_, &w)| f64::from(w))
-        .sum();
-    let kept = per_pixel
-        .clone()
-        .detach()
-        .greater_equal_elem(threshold)
-        .float();
-    weighted_mean(per_pixel, targets.weights.clone() * kept, kept_sum)
+        .map(|(&l, &w)| if l >= threshold { w } else { 0.0 })
+        .collect();
+    let kept_sum = kept.iter().map(|&w| f64::from(w)).sum();
+    let kept = Tensor::from_data(TensorData::new(kept, per_pixel.dims()), &per_pixel.device());
+    weighted_mean(per_pixel, kept, kept_sum)
 }
 
 /// `[B, H, W]`: each pixel's merged cross-entropy (module docs), 0 where ignored.
@@ -251,6 +248,19 @@ mod tests {
         t.into_data().try_to_vec::<f32>().unwrap_or_default()[0]
     }
 
+    /// The targets of one 1×4 label.
+    fn targets_of_one(labels: &[u8; 4], unlabelable: &[bool; 3], weights: &[f32]) -> LossTargets {
+        LossTargets::new(
+            &[LabelRef {
+                pixels: labels,
+                unlabelable,
+            }],
+            [1, 4],
+            weights,
+            &device(),
+        )
+    }
+
     /// 1 image, 3 classes, 1×4 pixels.
     fn logits() -> Tensor<4> {
         let values = vec![
@@ -263,18 +273,7 @@ mod tests {
 
     #[test]
     fn without_masking_it_is_weighted_cross_entropy() {
-        let labels = [0u8, 1, 255, 0];
-        let none = [false; 3];
-        let weights = [1.0f32, 2.0, 1.0];
-        let targets = LossTargets::new(
-            &[LabelRef {
-                pixels: &labels,
-                unlabelable: &none,
-            }],
-            [1, 4],
-            &weights,
-            &device(),
-        );
+        let targets = targets_of_one(&[0, 1, 255, 0], &[false; 3], &[1.0, 2.0, 1.0]);
         let loss = scalar(segmentation_loss(logits(), &targets));
         // By hand from log-softmax: pixels 0 (class 0, w 1), 1 (class 1, w 2), 3 (class 0, w 1).
         let logp = log_softmax(logits(), 1)
@@ -293,16 +292,10 @@ mod tests {
         // label markings (it calls them road).
         let weights = [1.0f32; 3];
         let loss_with = |labels: &[u8; 4], unlabelable: [bool; 3]| {
-            let t = LossTargets::new(
-                &[LabelRef {
-                    pixels: labels,
-                    unlabelable: &unlabelable,
-                }],
-                [1, 4],
-                &weights,
-                &device(),
-            );
-            scalar(segmentation_loss(logits(), &t))
+            scalar(segmentation_loss(
+                logits(),
+                &targets_of_one(labels, &unlabelable, &weights),
+            ))
         };
         let logp = log_softmax(logits(), 1)
             .into_data()
@@ -334,16 +327,7 @@ mod tests {
                 < 1e-6
         );
         // Nothing counted: zero, not NaN.
-        let all_ignored = [255u8; 4];
-        let t = LossTargets::new(
-            &[LabelRef {
-                pixels: &all_ignored,
-                unlabelable: &[false; 3],
-            }],
-            [1, 4],
-            &weights,
-            &device(),
-        );
+        let t = targets_of_one(&[255; 4], &[false; 3], &weights);
         assert_eq!(scalar(segmentation_loss(logits(), &t)), 0.0);
     }
 
@@ -351,17 +335,8 @@ mod tests {
     fn hard_pixels_keep_the_unsure_pixels_and_at_least_the_hardest_share() {
         // Pixels 0 (class 0, weight 1), 1 (class 1, weight 2) and 3 (class 0, weight 1)
         // count; pixel 2 is ignored.
-        let labels = [0u8, 1, 255, 0];
         let weights = [1.0f32, 2.0, 1.0];
-        let targets = LossTargets::new(
-            &[LabelRef {
-                pixels: &labels,
-                unlabelable: &[false; 3],
-            }],
-            [1, 4],
-            &weights,
-            &device(),
-        );
+        let targets = targets_of_one(&[0, 1, 255, 0], &[false; 3], &weights);
         let logp = log_softmax(logits(), 1)
             .into_data()
             .try_to_vec::<f32>()
@@ -391,15 +366,7 @@ mod tests {
         let got = hard(between, 0.01);
         assert!((got - expected).abs() < 1e-5, "{got} vs {expected}");
         // Nothing counted: zero, not NaN.
-        let t = LossTargets::new(
-            &[LabelRef {
-                pixels: &[255u8; 4],
-                unlabelable: &[false; 3],
-            }],
-            [1, 4],
-            &weights,
-            &device(),
-        );
+        let t = targets_of_one(&[255; 4], &[false; 3], &weights);
         let none = scalar(hard_pixel_loss(logits(), &t, &HardPixels::new()));
         assert_eq!(none, 0.0);
         // Shares outside (0, 1] are refused.
@@ -410,15 +377,7 @@ mod tests {
     #[test]
     fn dice_averages_the_overlap_of_the_classes_the_labels_hold() {
         let targets_of = |labels: &[u8; 4], unlabelable: [bool; 3]| {
-            LossTargets::new(
-                &[LabelRef {
-                    pixels: labels,
-                    unlabelable: &unlabelable,
-                }],
-                [1, 4],
-                &[1.0f32; 3],
-                &device(),
-            )
+            targets_of_one(labels, &unlabelable, &[1.0; 3])
         };
         let p = burn::tensor::activation::softmax(logits(), 1)
             .into_data()

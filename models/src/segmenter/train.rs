@@ -565,8 +565,8 @@ impl WeightAverage {
 }
 
 /// The loss of one batch: `[B, 3, crop, crop]` images through the network, the merged
-/// cross-entropy of the main head (over its hard pixels with `hard_pixels`), plus `dice_weight` times its Dice loss, plus `aux_weight`
-/// times the aux head's cross-entropy.
+/// cross-entropy of the main head (over its hard pixels with `hard_pixels`), plus
+/// `dice_weight` times its Dice loss, plus `aux_weight` times the aux head's cross-entropy.
 fn batch_loss(
     model: &PspNet,
     config: &TrainingConfig,
