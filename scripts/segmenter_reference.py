@@ -176,9 +176,13 @@ class PspNet(nn.Module):
         self.cfg = cfg
         self.encoder = Encoder(cfg)
         self.pyramid = PyramidPooling(cfg, w[cfg["depth"] - 1])
-        self.skip = SkipRefinement(w[1], cfg["psp_channels"], cfg["skip_channels"], cfg["align_corners"]) \
+        mid = cfg.get("mid_skip_channels", 0)
+        # The stride-8 refinement on stage 2's output (burn's `mid_skip`), depth 4 and 5.
+        self.mid_skip = SkipRefinement(w[2], cfg["psp_channels"], mid, cfg["align_corners"]) if mid > 0 else None
+        high = mid or cfg["psp_channels"]
+        self.skip = SkipRefinement(w[1], high, cfg["skip_channels"], cfg["align_corners"]) \
             if cfg["skip_channels"] > 0 else None
-        coarse = cfg["skip_channels"] or cfg["psp_channels"]
+        coarse = cfg["skip_channels"] or high
         fine = cfg.get("fine_skip_channels", 0)
         # The stride-2 refinement on the stem's output (burn's `fine_skip`).
         self.fine_skip = SkipRefinement(w[0], coarse, fine, cfg["align_corners"]) if fine > 0 else None
@@ -190,6 +194,8 @@ class PspNet(nn.Module):
         y = self.pyramid(stages[-1])
         if dropout is not None:
             y = dropout(y)
+        if self.mid_skip is not None:
+            y = self.mid_skip(y, stages[1])
         if self.skip is not None:
             y = self.skip(y, stages[0])
         if self.fine_skip is not None:

@@ -13,6 +13,8 @@
 //!  └ pyramid pooling: for each bin b in (1, 2, 3, 6): adaptive average pool to b×b,
 //!      1×1 conv to C/len(bins) (BN ReLU; no BN for b = 1), bilinear back up;
 //!      concat [branches..., features], 1×1 conv to psp_channels BN ReLU, channel dropout
+//!  └ (mid skip refinement, depth 4 and 5: the same with stage 2, to mid_skip_channels at
+//!      stride 8)
 //!  └ (skip refinement: 1×1 convs of the pyramid output and of stage 1 to skip_channels,
 //!      concat at stride 4, 3×3 conv BN ReLU)
 //!  └ (fine skip refinement: the same with the stem's output, to fine_skip_channels at
@@ -72,6 +74,11 @@ pub struct PspNetConfig {
     /// Channel-dropout probability after the pyramid module (training only).
     #[config(default = 0.2)]
     pub dropout: f64,
+    /// Channels of a refinement at stride 8, on stage 2's output, before the stride-4 one;
+    /// 0 turns it off. Only for depth 4 and 5, where the pyramid pools stride-16 or
+    /// stride-32 features and stage 2 would otherwise reach only the aux head.
+    #[config(default = 0)]
+    pub mid_skip_channels: usize,
     /// Channels of the light skip refinement at stride 4; 0 turns it off.
     #[config(default = 0)]
     pub skip_channels: usize,
@@ -125,6 +132,9 @@ impl PspNetConfig {
         }
         if self.skip_channels > 0 && self.depth < 3 {
             return bad("the skip refinement needs depth 3 or more".into());
+        }
+        if self.mid_skip_channels > 0 && self.depth < 4 {
+            return bad("the mid skip refinement needs depth 4 or more".into());
         }
         if self.std.iter().any(|&s| !(s.is_finite() && s > 0.0)) {
             return bad(format!("std must be positive, not {:?}", self.std));
@@ -182,27 +192,22 @@ impl PspNetConfig {
         let encoder = Encoder::new(self, &mut init);
         let features = widths[self.stages()];
         let pyramid = PyramidPooling::new(self, features, &mut init);
-        let skip = (self.skip_channels > 0).then(|| {
-            SkipRefinement::new(widths[1], self.psp_channels, self.skip_channels, &mut init)
-        });
-        let coarse_channels = if self.skip_channels > 0 {
-            self.skip_channels
-        } else {
-            self.psp_channels
-        };
-        let fine_skip = (self.fine_skip_channels > 0).then(|| {
-            SkipRefinement::new(
-                widths[0],
-                coarse_channels,
-                self.fine_skip_channels,
-                &mut init,
-            )
-        });
-        let head_channels = if self.fine_skip_channels > 0 {
-            self.fine_skip_channels
-        } else {
-            coarse_channels
-        };
+        // Each refinement takes the channels of the one before it (the pyramid's first).
+        let mut head_channels = self.psp_channels;
+        let mid_skip = SkipRefinement::chained(
+            widths[2],
+            self.mid_skip_channels,
+            &mut head_channels,
+            &mut init,
+        );
+        let skip =
+            SkipRefinement::chained(widths[1], self.skip_channels, &mut head_channels, &mut init);
+        let fine_skip = SkipRefinement::chained(
+            widths[0],
+            self.fine_skip_channels,
+            &mut head_channels,
+            &mut init,
+        );
         let classifier = init.conv(head_channels, self.classes, 1, 1, 1, true);
         let aux = self
             .aux_head
@@ -210,6 +215,7 @@ impl PspNetConfig {
         Ok(PspNet {
             encoder,
             pyramid,
+            mid_skip,
             skip,
             fine_skip,
             classifier,
@@ -536,7 +542,23 @@ impl SkipRefinement {
         }
     }
 
-    /// `high [B, P, h, w]`, `low [B, L, 2h, 2w] -> [B, channels, 2h, 2w]`.
+    /// A refinement to `channels` (none when 0) of the `*high`-channel head with a skip of
+    /// `low` channels; `*high` becomes what the head has after it.
+    fn chained(
+        low: usize,
+        channels: usize,
+        high: &mut usize,
+        init: &mut Init,
+    ) -> Option<SkipRefinement> {
+        (channels > 0).then(|| {
+            let refinement = SkipRefinement::new(low, *high, channels, init);
+            *high = channels;
+            refinement
+        })
+    }
+
+    /// `high [B, P, h, w]`, `low [B, L, H, W] -> [B, channels, H, W]` (`H, W` a multiple of
+    /// `h, w`: 2 or 4 times).
     pub fn forward(&self, high: Tensor<4>, low: Tensor<4>, align_corners: bool) -> Tensor<4> {
         let [_, _, h, w] = low.dims();
         let high = resize(relu(self.high.forward(high)), [h, w], align_corners);
@@ -575,6 +597,7 @@ pub struct Heads {
 pub struct PspNet {
     pub encoder: Encoder,
     pub pyramid: PyramidPooling,
+    pub mid_skip: Option<SkipRefinement>,
     pub skip: Option<SkipRefinement>,
     pub fine_skip: Option<SkipRefinement>,
     pub classifier: Conv2d,
@@ -591,12 +614,14 @@ impl PspNet {
         let (mut total, stem_out) = self.encoder.stem.macs([h, w]);
         // The 3×3/2 max-pool with padding 1 halves the size, rounding up.
         let mut size = stem_out.map(|n| n.div_ceil(2));
-        let mut block_sizes = Vec::new();
-        for block in self.encoder.stages.iter().flat_map(|s| &s.blocks) {
-            let (m, out) = block.macs(size);
-            total += m;
-            size = out;
-            block_sizes.push(size);
+        let mut stage_sizes = Vec::new();
+        for stage in &self.encoder.stages {
+            for block in &stage.blocks {
+                let (m, out) = block.macs(size);
+                total += m;
+                size = out;
+            }
+            stage_sizes.push(size);
         }
         let branches: u64 = self
             .pyramid
@@ -607,7 +632,8 @@ impl PspNet {
         total += branches + self.pyramid.bottleneck.macs(size).0;
         let mut head_size = size;
         let refinements = [
-            (&self.skip, block_sizes.first().copied().unwrap_or(size)),
+            (&self.mid_skip, stage_sizes.get(1).copied().unwrap_or(size)),
+            (&self.skip, stage_sizes.first().copied().unwrap_or(size)),
             (&self.fine_skip, stem_out),
         ];
         for (refinement, low) in refinements {
@@ -643,6 +669,9 @@ impl PspNet {
         };
         if let Some(seed) = noise_seed {
             x = channel_dropout(x, self.dropout, seed);
+        }
+        if let (Some(mid), Some(stage2)) = (&self.mid_skip, stages.get(1)) {
+            x = mid.forward(x, stage2.clone(), ac);
         }
         if let Some(skip) = &self.skip {
             x = skip.forward(x, stages[0].clone(), ac);
@@ -733,5 +762,26 @@ mod tests {
         // 4 channels at 16×16 instead of 8 at 8×8.
         let added = 8 * 4 * 64 + 8 * 4 * 256 + 8 * 4 * 9 * 256 + 4 * 5 * 256 - 8 * 5 * 64;
         assert_eq!(fine.macs(32, 32) - coarse.macs(32, 32), added);
+    }
+
+    #[test]
+    fn the_mid_refinement_needs_depth_4_and_counts_its_convolutions() {
+        let device = Device::flex();
+        assert!(tiny().with_mid_skip_channels(4).init(&device).is_err());
+        let deep = tiny().with_depth(4);
+        let plain = deep.init(&device).unwrap_or_else(|e| panic!("{e}"));
+        let mid = deep
+            .with_mid_skip_channels(4)
+            .init(&device)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let images = Tensor::<4>::zeros([2, 3, 64, 64], &device);
+        assert_eq!(mid.forward(images).dims(), [2, 5, 64, 64]);
+        // On 64×64 stage 2 (16 channels at width 1/8) is 8×8 and the pyramid (16 channels)
+        // 4×4. The refinement projects the pyramid (1×1 at 4×4) and stage 2 (1×1 at 8×8) to
+        // 4 each and fuses them (3×3, 8 -> 4 at 8×8). The stride-4 refinement's projection
+        // of the head (to 8 channels) then takes 4 channels at 8×8 instead of 16 at 4×4: the
+        // same count.
+        let added = 16 * 4 * 16 + 16 * 4 * 64 + 8 * 4 * 9 * 64;
+        assert_eq!(mid.macs(64, 64) as i64 - plain.macs(64, 64) as i64, added);
     }
 }

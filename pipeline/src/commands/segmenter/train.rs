@@ -145,6 +145,10 @@ pub struct ArchArgs {
     #[arg(long, value_name = "N")]
     pub psp_channels: Option<usize>,
 
+    /// Channels of the stride-8 skip refinement, on stage 2's output (depth 4 and 5) [default: 0, off].
+    #[arg(long, value_name = "N")]
+    pub mid_skip_channels: Option<usize>,
+
     /// Channels of the stride-4 skip refinement [default: 0, off].
     #[arg(long, value_name = "N")]
     pub skip_channels: Option<usize>,
@@ -170,6 +174,7 @@ impl ArchArgs {
         set(&mut m.width, self.width);
         set(&mut m.depth, self.depth);
         set(&mut m.psp_channels, self.psp_channels);
+        set(&mut m.mid_skip_channels, self.mid_skip_channels);
         set(&mut m.skip_channels, self.skip_channels);
         set(&mut m.fine_skip_channels, self.fine_skip_channels);
         m.dilated |= self.dilated;
