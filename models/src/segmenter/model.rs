@@ -75,8 +75,9 @@ pub struct PspNetConfig {
     #[config(default = 0.2)]
     pub dropout: f64,
     /// Channels of a refinement at stride 8, on stage 2's output, before the stride-4 one;
-    /// 0 turns it off. Only for depth 4 and 5, where the pyramid pools stride-16 or
-    /// stride-32 features and stage 2 would otherwise reach only the aux head.
+    /// 0 turns it off. Only for depth 4 and 5, where stage 2 would otherwise reach only the
+    /// aux head (strided, the pyramid pools stride-16 or stride-32 features; dilated, stride-8
+    /// ones, so the refinement then fuses at one size).
     #[config(default = 0)]
     pub mid_skip_channels: usize,
     /// Channels of the light skip refinement at stride 4; 0 turns it off.
@@ -523,9 +524,10 @@ impl PyramidPooling {
     }
 }
 
-/// A light skip refinement: coarse features (the pyramid output, or the stride-4
-/// refinement's) and finer encoder features (stage 1's at stride 4, the stem's at stride 2),
-/// each 1×1-projected to `channels`, concatenated at the finer size and fused by a 3×3 conv.
+/// A light skip refinement: coarse features (the pyramid output, or the refinement before)
+/// and finer encoder features (stage 2's at stride 8, stage 1's at stride 4, the stem's at
+/// stride 2), each 1×1-projected to `channels`, concatenated at the finer size and fused by
+/// a 3×3 conv.
 #[derive(Module, Debug)]
 pub struct SkipRefinement {
     pub low: ConvNorm,
@@ -557,8 +559,8 @@ impl SkipRefinement {
         })
     }
 
-    /// `high [B, P, h, w]`, `low [B, L, H, W] -> [B, channels, H, W]` (`H, W` a multiple of
-    /// `h, w`: 2 or 4 times).
+    /// `high [B, P, h, w]`, `low [B, L, H, W] -> [B, channels, H, W]` (`H, W` 1, 2 or 4
+    /// times `h, w`).
     pub fn forward(&self, high: Tensor<4>, low: Tensor<4>, align_corners: bool) -> Tensor<4> {
         let [_, _, h, w] = low.dims();
         let high = resize(relu(self.high.forward(high)), [h, w], align_corners);
@@ -670,14 +672,16 @@ impl PspNet {
         if let Some(seed) = noise_seed {
             x = channel_dropout(x, self.dropout, seed);
         }
-        if let (Some(mid), Some(stage2)) = (&self.mid_skip, stages.get(1)) {
-            x = mid.forward(x, stage2.clone(), ac);
-        }
-        if let Some(skip) = &self.skip {
-            x = skip.forward(x, stages[0].clone(), ac);
-        }
-        if let Some(fine) = &self.fine_skip {
-            x = fine.forward(x, stem, ac);
+        // Coarse to fine, in the order `macs` counts them.
+        let refinements = [
+            (&self.mid_skip, stages.get(1)),
+            (&self.skip, stages.first()),
+            (&self.fine_skip, Some(&stem)),
+        ];
+        for (refinement, low) in refinements {
+            if let (Some(r), Some(low)) = (refinement, low) {
+                x = r.forward(x, low.clone(), ac);
+            }
         }
         let logits = resize(crate::layers::conv2d(&self.classifier, x), [h, w], ac);
         let aux = match (&self.aux, noise_seed) {
