@@ -5,7 +5,9 @@ Each connected blob of the class in the labels (4-connected) is put in a size bi
 script reports the blobs, their pixels and how many of those pixels the predictions give the class (recall). It
 also reports the pixels predicted as the class outside any blob (false), the class IoU, and what the IoU would be
 if every blob of at least --small pixels were found whole (the false pixels unchanged): how much of the loss the
-small, far objects explain and how much the rest (docs/segmenter.md).
+small, far objects explain and how much the rest (docs/segmenter.md). Last, how many of the missed and of the false
+pixels lie on the class's outline (within one pixel of a label edge of the class, 8-connected): errors of the
+drawing rather than of the finding.
 
     pipeline segmenter predict --model RUN VAL_IMAGES --out PRED     # label PNGs named as the dataset's
     python3 scripts/segmenter_blob_recall.py DATASET/labels PRED/labels [--class 3] [--small 30] [--json FILE]
@@ -52,6 +54,7 @@ def main():
     pixels = [0] * len(BINS)
     found = [0] * len(BINS)
     false = 0
+    missed_on_edge, false_on_edge = 0, 0
     small_found, small_pixels = 0, 0
     for name in names:
         path = os.path.join(args.labels, name)
@@ -64,6 +67,9 @@ def main():
         mask = truth == args.cls
         hit = pred == args.cls
         false += int((hit & ~mask).sum())
+        ring = ndimage.binary_dilation(mask, np.ones((3, 3), bool)) & ~ndimage.binary_erosion(mask, np.ones((3, 3), bool))
+        missed_on_edge += int((mask & ~hit & ring).sum())
+        false_on_edge += int((hit & ~mask & ring).sum())
         lab, n = ndimage.label(mask)
         if n == 0:
             continue
@@ -91,10 +97,14 @@ def main():
         print(f"| {span} | {blobs[b]:,} | {pixels[b]:,} | {found[b]:,} | {recall:.3f} |")
     print(f"class pixels {total:,}, found {hits:,}, predicted elsewhere {false:,}: IoU {iou:.3f}")
     print(f"IoU if every blob of at least {args.small} pixels were found whole: {whole:.3f}")
+    missed = total - hits
+    print(f"on the outline (within 1 pixel of a label edge): {missed_on_edge:,} of the {missed:,} missed pixels, "
+          f"{false_on_edge:,} of the {false:,} false ones")
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"images": len(names), "class": args.cls, "bins": rows, "false": false, "iou": iou,
-                       "iou_if_large_found": whole, "small": args.small}, f, indent=1)
+                       "iou_if_large_found": whole, "small": args.small,
+                       "missed_on_edge": missed_on_edge, "false_on_edge": false_on_edge}, f, indent=1)
             f.write("\n")
 
 
