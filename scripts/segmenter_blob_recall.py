@@ -55,6 +55,7 @@ def main():
     found = [0] * len(BINS)
     false = 0
     missed_on_edge, false_on_edge = 0, 0
+    square = np.ones((3, 3), bool)  # 8-connected neighbourhood of the outline
     small_found, small_pixels = 0, 0
     for name in names:
         path = os.path.join(args.labels, name)
@@ -67,7 +68,7 @@ def main():
         mask = truth == args.cls
         hit = pred == args.cls
         false += int((hit & ~mask).sum())
-        ring = ndimage.binary_dilation(mask, np.ones((3, 3), bool)) & ~ndimage.binary_erosion(mask, np.ones((3, 3), bool))
+        ring = ndimage.binary_dilation(mask, square) & ~ndimage.binary_erosion(mask, square)
         missed_on_edge += int((mask & ~hit & ring).sum())
         false_on_edge += int((hit & ~mask & ring).sum())
         lab, n = ndimage.label(mask)
