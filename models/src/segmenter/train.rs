@@ -42,7 +42,7 @@ use super::eval::{Prediction, class_names, evaluate};
 use super::files::{load_record, save_model, save_record, write_atomic};
 use super::infer::{Inference, normalise};
 use super::loss::{
-    HardPixels, LabelRef, LossTargets, dice_loss, hard_pixel_loss, segmentation_loss,
+    HardPixels, LabelRef, LossTargets, dice_loss, hard_pixel_loss, lovasz_loss, segmentation_loss,
 };
 use super::metrics::MetricsSummary;
 use super::model::{PspNet, PspNetConfig};
@@ -108,6 +108,9 @@ pub struct TrainingConfig {
     /// Weight of the soft Dice loss added to the cross-entropy (0: cross-entropy alone).
     #[config(default = 0.0)]
     pub dice_weight: f64,
+    /// Weight of the Lovász-softmax loss added to the cross-entropy (`loss::lovasz_loss`; 0: off).
+    #[config(default = 0.0)]
+    pub lovasz_weight: f64,
     /// The main head's cross-entropy over the hard pixels only (`loss::hard_pixel_loss`)
     /// [default: every pixel].
     #[config(default = "None")]
@@ -160,11 +163,10 @@ impl TrainingConfig {
                 self.ema_decay
             ));
         }
-        if !(self.dice_weight.is_finite() && self.dice_weight >= 0.0) {
-            return bad(format!(
-                "dice weight must be 0 or more, not {}",
-                self.dice_weight
-            ));
+        for (name, weight) in [("dice", self.dice_weight), ("Lovász", self.lovasz_weight)] {
+            if !(weight.is_finite() && weight >= 0.0) {
+                return bad(format!("{name} weight must be 0 or more, not {weight}"));
+            }
         }
         if let Some(hard) = &self.hard_pixels
             && !hard.is_valid()
@@ -566,7 +568,8 @@ impl WeightAverage {
 
 /// The loss of one batch: `[B, 3, crop, crop]` images through the network, the merged
 /// cross-entropy of the main head (over its hard pixels with `hard_pixels`), plus
-/// `dice_weight` times its Dice loss, plus `aux_weight` times the aux head's cross-entropy.
+/// `dice_weight` times its Dice loss and `lovasz_weight` times its Lovász-softmax loss, plus
+/// `aux_weight` times the aux head's cross-entropy.
 fn batch_loss(
     model: &PspNet,
     config: &TrainingConfig,
@@ -593,7 +596,10 @@ fn batch_loss(
         None => segmentation_loss(heads.logits.clone(), &targets),
     };
     if config.dice_weight > 0.0 {
-        loss = loss + dice_loss(heads.logits, &targets).mul_scalar(config.dice_weight);
+        loss = loss + dice_loss(heads.logits.clone(), &targets).mul_scalar(config.dice_weight);
+    }
+    if config.lovasz_weight > 0.0 {
+        loss = loss + lovasz_loss(heads.logits, &targets).mul_scalar(config.lovasz_weight);
     }
     match heads.aux {
         Some(aux) => loss + segmentation_loss(aux, &targets).mul_scalar(config.aux_weight),

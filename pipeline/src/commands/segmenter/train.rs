@@ -93,6 +93,11 @@ pub struct TrainArgs {
     #[arg(long, value_name = "W")]
     pub dice_weight: Option<f64>,
 
+    /// Weight of a Lovász-softmax loss (a surrogate of each class's IoU) added to the
+    /// cross-entropy [default: 0, off].
+    #[arg(long, value_name = "W")]
+    pub lovasz_weight: Option<f64>,
+
     /// Train the main head's cross-entropy on the hard pixels only (online hard-example
     /// mining): those whose probability of their class is under PROBABILITY (e.g. 0.7), and
     /// at least the hardest 1/16 [default: every pixel].
@@ -219,6 +224,7 @@ impl TrainArgs {
         set(&mut c.size, self.size);
         set(&mut c.crop, self.crop);
         set(&mut c.dice_weight, self.dice_weight);
+        set(&mut c.lovasz_weight, self.lovasz_weight);
         set(&mut c.balanced_crops, self.balanced_crops);
         if let Some(probability) = self.hard_pixels {
             let hard = c.hard_pixels.take().unwrap_or_else(HardPixels::new);
