@@ -189,12 +189,7 @@ impl HardPixels {
 /// losses back to the host once, to find the threshold.
 pub fn hard_pixel_loss(logits: Tensor<4>, targets: &LossTargets, hard: &HardPixels) -> Tensor<1> {
     let per_pixel = pixel_losses(logits, targets);
-    let losses = per_pixel
-        .clone()
-        .detach()
-        .into_data()
-        .try_to_vec::<f32>()
-        .unwrap_or_default();
+    let losses = to_host(per_pixel.clone());
     let Some(threshold) = hard.threshold(&losses, &targets.host_weights) else {
         return weighted_mean(per_pixel, targets.weights.clone(), 0.0);
     };
@@ -260,28 +255,22 @@ pub fn lovasz_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> {
     let truth = targets.allowed.clone() * single.clone();
     let probabilities = burn::tensor::activation::softmax(logits, 1) * single;
     let errors = (truth - probabilities).abs();
-    let host_errors = errors
-        .clone()
-        .detach()
-        .into_data()
-        .try_to_vec::<f32>()
-        .unwrap_or_default();
+    let host_errors = to_host(errors.clone());
     let plane = h * w;
+    // The counted pixels (index into `[B, H, W]`, class), found once for all classes.
+    let counted: Vec<(usize, u8)> = (targets.host_single.iter().copied().enumerate())
+        .filter(|&(_, y)| y != IGNORE)
+        .collect();
     let mut weights = vec![0.0f32; batch * classes * plane];
     let mut order = ErrorOrder::default();
     let mut counted_classes = 0usize;
     for class in 0..classes {
         let at = |p: usize| (p / plane * classes + class) * plane + p % plane;
-        let pixels: Vec<(f32, bool)> = targets
-            .host_single
+        let pixels: Vec<(f32, bool)> = counted
             .iter()
-            .enumerate()
-            .filter(|&(_, &y)| y != IGNORE)
-            .map(|(p, &y)| {
-                (
-                    host_errors.get(at(p)).copied().unwrap_or(0.0),
-                    usize::from(y) == class,
-                )
+            .map(|&(p, y)| {
+                let error = host_errors.get(at(p)).copied().unwrap_or(0.0);
+                (error, usize::from(y) == class)
             })
             .collect();
         let class_weights = order.lovasz_weights(&pixels);
@@ -289,12 +278,7 @@ pub fn lovasz_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> {
             continue;
         }
         counted_classes += 1;
-        let positions = targets
-            .host_single
-            .iter()
-            .enumerate()
-            .filter(|&(_, &y)| y != IGNORE);
-        for ((p, _), weight) in positions.zip(class_weights) {
+        for (&(p, _), weight) in counted.iter().zip(class_weights) {
             weights[at(p)] = weight;
         }
     }
@@ -304,6 +288,14 @@ pub fn lovasz_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> {
     );
     let total = (errors * weights).sum();
     total.div_scalar(counted_classes.max(1) as f64)
+}
+
+/// A tensor's values on the host, row-major, outside the autodiff graph.
+fn to_host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.detach()
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap_or_default()
 }
 
 /// Error levels [`ErrorOrder`] tells apart: errors in [0, 1] are ordered by
