@@ -19,7 +19,8 @@
 //! from (seed, epoch, draw), each step's dropout masks from (seed, step), and burn's flex
 //! backend computes a convolution's output elements independently of the thread that runs
 //! them; so a run and a run resumed from any checkpoint take the same steps. Only the time
-//! budget (`max_minutes`) depends on the machine.
+//! budget (`max_minutes`) depends on the machine, and with `decay_over_budget` the
+//! learning rates too.
 
 use std::collections::BTreeMap;
 use std::fs::OpenOptions;
@@ -85,6 +86,13 @@ pub struct TrainingConfig {
     /// Poly decay `lr · (1 − step / steps)^power` over the whole run; 0 keeps it constant.
     #[config(default = 0.0)]
     pub poly_power: f64,
+    /// Run the poly decay over the time budget (`max_minutes`) as well as over the steps:
+    /// its progress is the larger of the steps' share and the budget's, so the rate reaches
+    /// 0 when the budget ends however fast the machine is. The rates then depend on the
+    /// machine's speed (each step's is in `curves.jsonl`), so such a run is not reproducible
+    /// step for step.
+    #[config(default = false)]
+    pub decay_over_budget: bool,
     /// Steps of linear warm-up from 0.
     #[config(default = 0)]
     pub warmup_steps: usize,
@@ -176,6 +184,9 @@ impl TrainingConfig {
                 hard.probability, hard.min_share
             ));
         }
+        if self.decay_over_budget && (self.max_minutes.is_none() || self.poly_power <= 0.0) {
+            return bad("decaying over the time budget needs a budget and a poly decay".into());
+        }
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
             return bad(format!(
                 "learning rate must be positive, not {}",
@@ -202,15 +213,19 @@ impl TrainingConfig {
         Ok(())
     }
 
-    /// Learning rate of optimiser step `step` (0-based) of `total`.
-    pub fn learning_rate_at(&self, step: u64, total: u64) -> f64 {
+    /// Learning rate of optimiser step `step` (0-based) of `total`, taken when the run has
+    /// lasted `seconds` (which only `decay_over_budget` looks at).
+    pub fn learning_rate_at(&self, step: u64, total: u64, seconds: f64) -> f64 {
         let warm = self.warmup_steps as u64;
         if step < warm {
             return self.learning_rate * (step + 1) as f64 / warm as f64;
         }
         if self.poly_power > 0.0 && total > 0 {
-            let t = (step as f64 / total as f64).min(1.0);
-            return self.learning_rate * (1.0 - t).powf(self.poly_power);
+            let mut t = step as f64 / total as f64;
+            if let Some(minutes) = self.max_minutes.filter(|_| self.decay_over_budget) {
+                t = t.max(seconds / (minutes * 60.0));
+            }
+            return self.learning_rate * (1.0 - t.min(1.0)).powf(self.poly_power);
         }
         self.learning_rate
     }
@@ -429,7 +444,7 @@ pub fn train(
             observer.progress("train", b + 1, batches_per_epoch);
             let last = b + 1 == batches_per_epoch;
             if pending == config.accumulation || last {
-                let lr = config.learning_rate_at(state.step, total_steps);
+                let lr = config.learning_rate_at(state.step, total_steps, elapsed());
                 model = optimizer.step(lr, model, accumulator.grads());
                 state.step += 1;
                 average.update(&model, state.step);
@@ -448,7 +463,7 @@ pub fn train(
         }
         if pending > 0 {
             // The time budget cut the accumulation short: use what was gathered.
-            let lr = config.learning_rate_at(state.step, total_steps);
+            let lr = config.learning_rate_at(state.step, total_steps, elapsed());
             model = optimizer.step(lr, model, accumulator.grads());
             state.step += 1;
             average.update(&model, state.step);
@@ -846,11 +861,32 @@ mod tests {
             .with_learning_rate(1.0)
             .with_warmup_steps(4)
             .with_poly_power(1.0);
-        assert_eq!(c.learning_rate_at(0, 100), 0.25);
-        assert_eq!(c.learning_rate_at(3, 100), 1.0);
-        assert!((c.learning_rate_at(50, 100) - 0.5).abs() < 1e-12);
+        assert_eq!(c.learning_rate_at(0, 100, 0.0), 0.25);
+        assert_eq!(c.learning_rate_at(3, 100, 0.0), 1.0);
+        assert!((c.learning_rate_at(50, 100, 0.0) - 0.5).abs() < 1e-12);
         let constant = TrainingConfig::new(PspNetConfig::new());
-        assert_eq!(constant.learning_rate_at(99, 100), 1e-4);
+        assert_eq!(constant.learning_rate_at(99, 100, 0.0), 1e-4);
+    }
+
+    #[test]
+    fn the_decay_can_run_over_the_time_budget() {
+        let steps = TrainingConfig::new(PspNetConfig::new())
+            .with_learning_rate(1.0)
+            .with_poly_power(1.0)
+            .with_max_minutes(Some(10.0));
+        // By steps alone the clock is ignored.
+        assert!((steps.learning_rate_at(25, 100, 450.0) - 0.75).abs() < 1e-12);
+        let budget = steps.clone().with_decay_over_budget(true);
+        assert!(budget.validate().is_ok());
+        // 450 s of 600 is further on than 25 steps of 100 ...
+        assert!((budget.learning_rate_at(25, 100, 450.0) - 0.25).abs() < 1e-12);
+        // ... and 60 s is not as far as 50 steps.
+        assert!((budget.learning_rate_at(50, 100, 60.0) - 0.5).abs() < 1e-12);
+        // Past the budget the rate stays 0 rather than turning negative.
+        assert_eq!(budget.learning_rate_at(10, 100, 900.0), 0.0);
+        // Without a budget there is nothing to decay over.
+        let unbounded = budget.with_max_minutes(None);
+        assert!(unbounded.validate().is_err());
     }
 
     #[test]

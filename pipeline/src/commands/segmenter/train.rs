@@ -66,6 +66,11 @@ pub struct TrainArgs {
     #[arg(long, value_name = "POWER")]
     pub poly: Option<f64>,
 
+    /// Run the poly decay over --max-minutes too, so the rate reaches 0 when the budget ends
+    /// on a slow machine as on a fast one (the rates then depend on the machine's speed).
+    #[arg(long)]
+    pub decay_over_budget: bool,
+
     #[arg(long, value_name = "STEPS")]
     pub warmup_steps: Option<usize>,
 
@@ -232,6 +237,7 @@ impl TrainArgs {
         }
         set(&mut c.ema_decay, self.ema_decay);
         c.bf16_convolutions |= self.bf16_convolutions;
+        c.decay_over_budget |= self.decay_over_budget;
         if self.samples_per_epoch.is_some() {
             c.samples_per_epoch = self.samples_per_epoch;
         }
