@@ -75,6 +75,35 @@ fn val_mious(run: &Path) -> Vec<f64> {
         .collect()
 }
 
+/// The loss of each optimiser step of a run, in order.
+fn step_losses(run: &Path) -> Vec<f64> {
+    curves(run)
+        .iter()
+        .filter_map(|p| match p {
+            CurvePoint::Step(s) => Some(s.loss),
+            CurvePoint::Epoch(_) => None,
+        })
+        .collect()
+}
+
+fn read(dir: &Path, file: &str) -> Vec<u8> {
+    std::fs::read(dir.join(file)).unwrap_or_else(|e| panic!("{}: {e}", dir.join(file).display()))
+}
+
+/// A fresh (or, with `resume`, continued) run of `config` in `root/name` on the flex backend.
+fn run_in(
+    root: &Path,
+    name: &str,
+    config: &TrainingConfig,
+    data: &TrainData,
+    resume: bool,
+) -> PathBuf {
+    let dir = root.join(name);
+    train(&dir, config, data, resume, &Device::flex(), &mut Quiet)
+        .unwrap_or_else(|e| panic!("{e}"));
+    dir
+}
+
 /// A new run into `run` on the flex backend, training and validating on `dataset`.
 fn train_fresh(
     run: &Path,
@@ -107,13 +136,7 @@ fn tiny_network_overfits_four_images() {
     assert_eq!(summary.state.stopped, Some(StopReason::Epochs));
     assert!(run.join(BEST_DIR).join("model.safetensors").is_file());
     // The loss went down.
-    let losses: Vec<f64> = curves(&run)
-        .iter()
-        .filter_map(|p| match p {
-            CurvePoint::Step(s) => Some(s.loss),
-            CurvePoint::Epoch(_) => None,
-        })
-        .collect();
+    let losses = step_losses(&run);
     assert_eq!(losses.len(), 150);
     assert!(
         losses[149] < losses[0] / 5.0,
@@ -212,14 +235,9 @@ fn the_weight_average_is_validated_saved_and_resumed_exactly() {
     let dataset = write_dataset(&root.path().join("data"));
     let data = data(&dataset);
     let run = |name: &str, epochs: usize, ema_decay: f64, resume: bool| {
-        let dir = root.path().join(name);
         let config = tiny_config(epochs).with_ema_decay(ema_decay);
-        train(&dir, &config, &data, resume, &Device::flex(), &mut Quiet)
-            .unwrap_or_else(|e| panic!("{e}"));
-        dir
+        run_in(root.path(), name, &config, &data, resume)
     };
-    let read =
-        |dir: &Path, file: &str| std::fs::read(dir.join(file)).unwrap_or_else(|e| panic!("{e}"));
     let plain = run("plain", 4, 0.0, false);
     let averaged = run("averaged", 4, 0.5, false);
     assert!(!plain.join("checkpoint/ema.bpk").exists());
@@ -241,4 +259,41 @@ fn the_weight_average_is_validated_saved_and_resumed_exactly() {
         assert_eq!(read(&averaged, file), read(&resumed, file), "{file}");
     }
     assert_eq!(val_mious(&averaged), val_mious(&resumed));
+}
+
+#[test]
+fn batch_norm_recalibration_changes_only_the_statistics_and_resumes_exactly() {
+    let root = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let dataset = write_dataset(&root.path().join("data"));
+    let data = data(&dataset);
+    let run = |name: &str, epochs: usize, batches: usize, resume: bool| {
+        let config = tiny_config(epochs).with_recalibration_batches(batches);
+        run_in(root.path(), name, &config, &data, resume)
+    };
+    let plain = run("plain", 3, 0, false);
+    let recalibrated = run("recalibrated", 3, 3, false);
+    // Training normalises with each batch's statistics, so the steps are the same; the
+    // running statistics, which the saved model keeps, are not.
+    assert_eq!(step_losses(&plain), step_losses(&recalibrated));
+    assert_ne!(
+        read(&plain, "checkpoint/model.bpk"),
+        read(&recalibrated, "checkpoint/model.bpk")
+    );
+    // 2 epochs, then resumed for 3: the same model.
+    run("resumed", 2, 3, false);
+    let resumed = run("resumed", 3, 3, true);
+    for file in ["checkpoint/model.bpk", "best/model.safetensors"] {
+        assert_eq!(read(&recalibrated, file), read(&resumed, file), "{file}");
+    }
+    assert_eq!(val_mious(&recalibrated), val_mious(&resumed));
+    // Recalibrating a weight average is refused before anything is written.
+    let both = tiny_config(1)
+        .with_recalibration_batches(3)
+        .with_ema_decay(0.5);
+    let refused = root.path().join("both");
+    let error = train(&refused, &both, &data, false, &Device::flex(), &mut Quiet)
+        .err()
+        .unwrap_or_else(|| panic!("recalibration of a weight average was accepted"));
+    assert!(error.to_string().contains("weight average"), "{error}");
+    assert!(!refused.exists());
 }

@@ -9,6 +9,7 @@ pub mod infer;
 pub mod loss;
 pub mod metrics;
 pub mod model;
+pub mod recalibrate;
 pub mod synthetic;
 pub mod train;
 

@@ -347,6 +347,12 @@ impl ConvNorm {
         conv_macs(&self.conv, size)
     }
 
+    fn visit_batch_norms(&mut self, visit: &mut dyn FnMut(&mut BatchNorm)) {
+        if let Some(norm) = &mut self.norm {
+            visit(norm);
+        }
+    }
+
     /// `[B, C_in, H, W] -> [B, C_out, H / stride, W / stride]`.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let x = crate::layers::conv2d(&self.conv, x);
@@ -388,6 +394,14 @@ impl BasicBlock {
         let (b, out) = self.conv2.macs(mid);
         let c = self.downsample.as_ref().map_or(0, |d| d.macs(size).0);
         (a + b + c, out)
+    }
+
+    fn visit_batch_norms(&mut self, visit: &mut dyn FnMut(&mut BatchNorm)) {
+        self.conv1.visit_batch_norms(visit);
+        self.conv2.visit_batch_norms(visit);
+        if let Some(down) = &mut self.downsample {
+            down.visit_batch_norms(visit);
+        }
     }
 
     /// `[B, C_in, H, W] -> [B, C_out, H / stride, W / stride]`.
@@ -508,6 +522,13 @@ impl PyramidPooling {
         }
     }
 
+    fn visit_batch_norms(&mut self, visit: &mut dyn FnMut(&mut BatchNorm)) {
+        for branch in &mut self.branches {
+            branch.conv.visit_batch_norms(visit);
+        }
+        self.bottleneck.visit_batch_norms(visit);
+    }
+
     /// `[B, C, h, w] -> [B, psp_channels, h, w]`.
     pub fn forward(&self, x: Tensor<4>, align_corners: bool) -> Tensor<4> {
         let [_, _, h, w] = x.dims();
@@ -557,6 +578,12 @@ impl SkipRefinement {
             *high = channels;
             refinement
         })
+    }
+
+    fn visit_batch_norms(&mut self, visit: &mut dyn FnMut(&mut BatchNorm)) {
+        for layer in [&mut self.low, &mut self.high, &mut self.fuse] {
+            layer.visit_batch_norms(visit);
+        }
     }
 
     /// `high [B, P, h, w]`, `low [B, L, H, W] -> [B, channels, H, W]` (`H, W` 1, 2 or 4
@@ -645,6 +672,25 @@ impl PspNet {
             }
         }
         total + conv_macs(&self.classifier, head_size).0
+    }
+
+    /// Calls `visit` on every batch norm of the network: the encoder's, the pyramid's, the
+    /// refinements' and the aux head's, in that order.
+    pub fn visit_batch_norms(&mut self, visit: &mut dyn FnMut(&mut BatchNorm)) {
+        self.encoder.stem.visit_batch_norms(visit);
+        for block in self.encoder.stages.iter_mut().flat_map(|s| &mut s.blocks) {
+            block.visit_batch_norms(visit);
+        }
+        self.pyramid.visit_batch_norms(visit);
+        for refinement in [&mut self.mid_skip, &mut self.skip, &mut self.fine_skip]
+            .into_iter()
+            .flatten()
+        {
+            refinement.visit_batch_norms(visit);
+        }
+        if let Some(aux) = &mut self.aux {
+            aux.conv.visit_batch_norms(visit);
+        }
     }
 
     /// Class logits of normalised images (see [`super::infer::normalise`]):

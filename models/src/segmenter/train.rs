@@ -47,6 +47,7 @@ use super::loss::{
 };
 use super::metrics::MetricsSummary;
 use super::model::{PspNet, PspNetConfig};
+use super::recalibrate::recalibrate_batch_norms;
 
 pub const TRAIN_CONFIG_FILE: &str = "train.json";
 pub const CURVES_FILE: &str = "curves.jsonl";
@@ -133,6 +134,11 @@ pub struct TrainingConfig {
     /// LibTorch backend only): faster on CPUs with bfloat16 dot products. Validation stays f32.
     #[config(default = false)]
     pub bf16_convolutions: bool,
+    /// Before each validation, replace the batch norms' running statistics by the average
+    /// of the batch statistics of this many training batches (`recalibrate`; 0: off, the
+    /// running statistics as training moved them). The batches count in the time budget.
+    #[config(default = 0)]
+    pub recalibration_batches: usize,
     /// Weight of the auxiliary head's loss (with `model.aux_head`).
     #[config(default = 0.4)]
     pub aux_weight: f64,
@@ -184,6 +190,13 @@ impl TrainingConfig {
                 hard.probability, hard.min_share
             ));
         }
+        if self.recalibration_batches > 0 && self.ema_decay > 0.0 {
+            return bad(
+                "batch-norm recalibration works on the trained weights, not on a weight average: \
+                 give one of the two"
+                    .into(),
+            );
+        }
         if self.decay_over_budget && (self.max_minutes.is_none() || self.poly_power <= 0.0) {
             return bad("decaying over the time budget needs a budget and a poly decay".into());
         }
@@ -211,6 +224,17 @@ impl TrainingConfig {
             ));
         }
         Ok(())
+    }
+
+    /// The on-the-fly augmentation of the training crops.
+    pub fn augment(&self) -> Augment {
+        Augment {
+            size: self.size,
+            crop: self.crop,
+            scale: self.scale,
+            flip: self.flip,
+            balanced_crops: self.balanced_crops,
+        }
     }
 
     /// Learning rate of optimiser step `step` (0-based) of `total`, taken when the run has
@@ -387,13 +411,7 @@ pub fn train(
         .class_weights
         .clone()
         .unwrap_or_else(|| vec![1.0; config.model.classes]);
-    let augment = Augment {
-        size: config.size,
-        crop: config.crop,
-        scale: config.scale,
-        flip: config.flip,
-        balanced_crops: config.balanced_crops,
-    };
+    let augment = config.augment();
     let session_start = Instant::now();
     let seconds_before = state.seconds;
     let elapsed = || seconds_before + session_start.elapsed().as_secs_f64();
@@ -469,6 +487,16 @@ pub fn train(
             average.update(&model, state.step);
         }
 
+        if config.recalibration_batches > 0 {
+            (model, _) = recalibrate_batch_norms(
+                model,
+                config,
+                &data.train,
+                config.recalibration_batches,
+                epoch as u64,
+                &device,
+            )?;
+        }
         let valid = average.weights(&model);
         let previews_wanted = config.preview_images;
         let mut previews = Vec::new();

@@ -1,4 +1,4 @@
-//! `pipeline segmenter train | eval | predict | bench`: the PSPNet-style segmenter of
+//! `pipeline segmenter train | eval | predict | bench | recalibrate`: the PSPNet-style segmenter of
 //! `models::segmenter` on datasets in the project's manifest format.
 //!
 //! ```text
@@ -6,6 +6,7 @@
 //! pipeline segmenter eval    --model MODEL --data DIR... [--split val] --out DIR
 //! pipeline segmenter predict --model MODEL INPUT --out DIR
 //! pipeline segmenter bench   [--model MODEL] [--size 256] [--batch 1] [--threads 2]
+//! pipeline segmenter recalibrate --run RUN [--from best|checkpoint] --data DIR[:WEIGHT]... [--batches 100] --out DIR
 //! ```
 //!
 //! `MODEL` is a model folder (`model.json` + `model.bpk`) or a training run folder, whose
@@ -14,6 +15,7 @@
 mod bench;
 mod eval;
 mod predict;
+mod recalibrate;
 mod record;
 mod train;
 
@@ -41,6 +43,8 @@ pub enum SegmenterCommand {
     Predict(predict::PredictArgs),
     /// Inference latency and throughput, training-step time, parameters and FLOPs.
     Bench(bench::BenchArgs),
+    /// Recompute a run's batch-norm statistics over training batches ("precise BN").
+    Recalibrate(recalibrate::RecalibrateArgs),
 }
 
 pub fn run(ctx: &Context<'_>, command: &SegmenterCommand) -> Result<()> {
@@ -49,6 +53,7 @@ pub fn run(ctx: &Context<'_>, command: &SegmenterCommand) -> Result<()> {
         SegmenterCommand::Eval(args) => eval::run(ctx, args),
         SegmenterCommand::Predict(args) => predict::run(ctx, args),
         SegmenterCommand::Bench(args) => bench::run(ctx, args),
+        SegmenterCommand::Recalibrate(args) => recalibrate::run(ctx, args),
     }
 }
 

@@ -124,6 +124,12 @@ pub struct TrainArgs {
     #[arg(long)]
     pub bf16_convolutions: bool,
 
+    /// Before each validation, recompute the batch norms' running statistics as the average
+    /// over this many training batches ("precise BN"; about a third of a step each)
+    /// [default: 0, off].
+    #[arg(long, value_name = "N")]
+    pub recalibration_batches: Option<usize>,
+
     #[command(flatten)]
     pub arch: ArchArgs,
 
@@ -236,6 +242,7 @@ impl TrainArgs {
             c.hard_pixels = Some(hard.with_probability(probability));
         }
         set(&mut c.ema_decay, self.ema_decay);
+        set(&mut c.recalibration_batches, self.recalibration_batches);
         c.bf16_convolutions |= self.bf16_convolutions;
         c.decay_over_budget |= self.decay_over_budget;
         if self.samples_per_epoch.is_some() {
