@@ -60,7 +60,7 @@ pub fn recalibrate_batch_norms(
         let batch = load_batch(sources, chunk, k * config.batch_size, &augment, seed, pass)?;
         let images: Vec<&image::RgbImage> = batch.iter().map(|(_, s)| &s.image).collect();
         let input = normalise(&images, &config.model, device);
-        // Only the statistics are wanted: the output and its graph are dropped at once.
+        // Only the statistics are wanted: the output is dropped at once.
         drop(model.forward(input));
     }
     let mut restored = momenta.into_iter();

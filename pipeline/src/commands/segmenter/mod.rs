@@ -27,7 +27,9 @@ use clap::{Args, Subcommand};
 use models::segmenter::data::{Source, SourceSpec, Split};
 use models::segmenter::files::{MODEL_CONFIG_FILE, load_model};
 use models::segmenter::infer::Inference;
-use models::segmenter::train::{BEST_DIR, DEFAULT_SHORT_SIDE, trained_short_side};
+use models::segmenter::train::{
+    BEST_DIR, DEFAULT_SHORT_SIDE, TrainingConfig, load_training_config, trained_short_side,
+};
 use models::segmenter::{PspNet, PspNetConfig, SegmenterError};
 
 use super::Context;
@@ -148,6 +150,17 @@ pub fn segmenter_error(err: SegmenterError, hint: &str) -> anyhow::Error {
         _ => hint,
     };
     CliError::new(err.to_string(), hint).into()
+}
+
+/// Reads a run's (or a `--settings`) train.json, with an error that names the file.
+pub fn read_training_config(path: &Path) -> Result<TrainingConfig> {
+    Ok(load_training_config(path).map_err(|e| {
+        CliError::file(
+            path,
+            format!("not a training config: {e}"),
+            "give a train.json written by `pipeline segmenter train`",
+        )
+    })?)
 }
 
 /// Parses `DIR[:WEIGHT]`.

@@ -9,12 +9,12 @@ use clap::{Args, ValueEnum};
 use models::segmenter::data::{SourceSpec, Split};
 use models::segmenter::files::{MODEL_RECORD_FILE, load_record, save_model};
 use models::segmenter::recalibrate::recalibrate_batch_norms;
-use models::segmenter::train::{
-    BEST_DIR, CHECKPOINT_DIR, TRAIN_CONFIG_FILE, TrainingConfig, load_training_config,
-};
+use models::segmenter::train::{BEST_DIR, CHECKPOINT_DIR, TRAIN_CONFIG_FILE};
 use serde::Serialize;
 
-use super::{Context, open_sources, parse_source, segmenter_error, with_threads};
+use super::{
+    Context, open_sources, parse_source, read_training_config, segmenter_error, with_threads,
+};
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 
@@ -120,14 +120,4 @@ pub fn run(ctx: &Context<'_>, args: &RecalibrateArgs) -> Result<()> {
         dest.display()
     ));
     Ok(())
-}
-
-fn read_training_config(path: &Path) -> Result<TrainingConfig> {
-    Ok(load_training_config(path).map_err(|e| {
-        CliError::file(
-            path,
-            format!("not a training config: {e}"),
-            "give a run folder written by `pipeline segmenter train`",
-        )
-    })?)
 }

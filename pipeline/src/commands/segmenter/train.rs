@@ -7,12 +7,12 @@ use clap::{Args, ValueEnum};
 use models::segmenter::PspNetConfig;
 use models::segmenter::data::{SourceSpec, Split};
 use models::segmenter::loss::HardPixels;
-use models::segmenter::train::{
-    StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, load_training_config, train,
-};
+use models::segmenter::train::{StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, train};
 
 use super::record::TrainRecorder;
-use super::{Context, open_sources, parse_source, segmenter_error, with_threads};
+use super::{
+    Context, open_sources, parse_source, read_training_config, segmenter_error, with_threads,
+};
 use crate::error::CliError;
 
 #[derive(Debug, Args)]
@@ -213,13 +213,7 @@ impl TrainArgs {
             (None, false) => None,
         };
         let mut c = match &file {
-            Some(path) => load_training_config(path).map_err(|e| {
-                CliError::file(
-                    path,
-                    format!("not a training config: {e}"),
-                    "give a train.json written by `pipeline segmenter train`",
-                )
-            })?,
+            Some(path) => read_training_config(path)?,
             None => TrainingConfig::new(PspNetConfig::new()).with_seed(seed),
         };
         if file.is_none() || self.settings.is_some() {
