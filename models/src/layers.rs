@@ -129,9 +129,9 @@ pub mod torch {
     //! Forward, when any input needs a gradient: the layer runs in LibTorch with autograd on,
     //! over detached views of the inputs (marked as needing a gradient where burn tracks them);
     //! burn gets the detached output and the autograd graph stays in the backward state.
-    //! Backward: LibTorch's autograd runs from the dot product of the output with its gradient,
-    //! whose gradient with respect to the output is that gradient, so the inputs' gradients are
-    //! exactly the layer's, computed by LibTorch's own kernels.
+    //! Backward: LibTorch's autograd engine runs from the output with burn's gradient of it
+    //! (`torch::autograd::grad`, through [`crate::torch_kernels`]), so the inputs' gradients
+    //! are exactly the layer's, computed by LibTorch's own kernels.
 
     use std::fmt;
 
@@ -365,15 +365,6 @@ pub mod torch {
         size.len() == 4 && stride[1] == 1 && stride[3] == size[1] && stride[2] == size[1] * size[3]
     }
 
-    /// `x` flattened in the order of its storage: a view when it is contiguous in either layout.
-    fn flat(x: &tch::Tensor, like_channels_last: bool) -> tch::Tensor {
-        if like_channels_last {
-            x.permute([0, 2, 3, 1]).reshape([-1])
-        } else {
-            x.reshape([-1])
-        }
-    }
-
     /// Batch norm of `x` with `gamma` and `beta` over the batch's statistics; also returns the
     /// mean and the biased variance (LibTorch gives `1 / sqrt(variance + epsilon)`).
     fn batch_norm_op(inputs: &[tch::Tensor; 3], epsilon: f64) -> (tch::Tensor, [tch::Tensor; 2]) {
@@ -492,13 +483,9 @@ pub mod torch {
             if inputs.is_empty() {
                 return;
             }
-            // The dot product reads both once; `(output * grad).sum()` would also write a
-            // product the size of the output. Both are flattened in the output's storage order,
-            // so only the gradient may need a copy (when its layout differs).
-            let order = is_channels_last(&output);
-            let objective =
-                tch::with_grad(|| flat(&output, order).dot(&flat(&output_grad.tensor, order)));
-            let input_grads = tch::Tensor::run_backward(&[objective], &inputs, false, false);
+            let input_grads =
+                crate::torch_kernels::autograd_grad(&output, &output_grad.tensor, &inputs)
+                    .unwrap_or_else(|error| panic!("LibTorch's backward pass of a layer: {error}"));
             for (parent, grad) in parents.into_iter().zip(input_grads) {
                 grads.register::<LibTorch>(parent, TchTensor::new(grad));
             }

@@ -5,6 +5,7 @@
 //! - [`layers`]: the networks' convolution, batch norm and ReLU (LibTorch's own backward passes
 //!   when training on LibTorch).
 //! - [`optim`]: Adam (in place on LibTorch).
+//! - `torch_kernels` (the `libtorch` feature): LibTorch code tch does not expose, in C++.
 //! - [`allocator`]: mimalloc's settings for training.
 //! - [`qnet`]: the Q-network (convolutions over the bird's-eye layers + an MLP over the
 //!   scalar inputs; dueling head; the ITS preset).
@@ -37,6 +38,8 @@ pub mod qnet;
 pub mod replay;
 pub mod segmenter;
 pub mod sum_tree;
+#[cfg(feature = "libtorch")]
+pub mod torch_kernels;
 pub mod vec_env;
 
 #[cfg(test)]

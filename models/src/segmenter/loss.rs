@@ -146,6 +146,27 @@ pub fn segmentation_loss(logits: Tensor<4>, targets: &LossTargets) -> Tensor<1> 
     weighted_mean(per_pixel, targets.weights.clone(), targets.weight_sum)
 }
 
+/// `segmentation_loss + dice_weight · dice_loss` (no Dice term when `dice_weight` is 0):
+/// `logits [B, classes, H, W]` with `targets` -> a scalar `[1]`. When training on LibTorch,
+/// one kernel computes the loss and its gradient in two passes over the logits
+/// ([`crate::torch_kernels::segmentation_loss`]) where burn's tensor operations make some forty;
+/// elsewhere it is the sum of the two functions.
+pub fn segmentation_dice_loss(
+    logits: Tensor<4>,
+    targets: &LossTargets,
+    dice_weight: f64,
+) -> Tensor<1> {
+    #[cfg(feature = "libtorch")]
+    if crate::layers::torch::trains_on_libtorch(&logits) {
+        return torch::segmentation_dice_loss(logits, targets, dice_weight);
+    }
+    let loss = segmentation_loss(logits.clone(), targets);
+    if dice_weight == 0.0 {
+        return loss;
+    }
+    loss + dice_loss(logits, targets).mul_scalar(dice_weight)
+}
+
 /// Which pixels [`hard_pixel_loss`] keeps.
 #[derive(Config, Debug, PartialEq)]
 pub struct HardPixels {
@@ -296,6 +317,153 @@ fn to_host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         .into_data()
         .try_to_vec::<f32>()
         .unwrap_or_default()
+}
+
+#[cfg(feature = "libtorch")]
+// burn 0.22 marks LibTorch deprecated (models::device says why we use it).
+#[allow(deprecated)]
+mod torch {
+    //! [`super::segmentation_dice_loss`] on LibTorch: a backend extension whose forward pass
+    //! computes the loss and its gradient at once, and whose backward pass scales that
+    //! gradient by the loss's.
+
+    use burn::backend::autodiff::checkpoint::base::Checkpointer;
+    use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+    use burn::backend::autodiff::grads::Gradients;
+    use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+    use burn::backend::libtorch::TchTensor;
+    use burn::backend::tensor::FloatTensor;
+    use burn::backend::{
+        Autodiff, AutodiffBackend, Backend, Dispatch, LibTorch, backend_extension,
+    };
+    use burn::tensor::Tensor;
+
+    use super::LossTargets;
+    use crate::torch_kernels::{self, LossInputs};
+
+    pub(super) fn segmentation_dice_loss(
+        logits: Tensor<4>,
+        targets: &LossTargets,
+        dice_weight: f64,
+    ) -> Tensor<1> {
+        Tensor::from_dispatch(<Dispatch as TorchLoss>::segmentation_dice_loss_torch(
+            logits.into_dispatch(),
+            targets.allowed.clone().into_dispatch(),
+            targets.weights.clone().into_dispatch(),
+            targets.single.clone().into_dispatch(),
+            targets.present.clone().into_dispatch(),
+            targets.weight_sum,
+            dice_weight,
+        ))
+    }
+
+    #[backend_extension(LibTorch, Autodiff)]
+    pub trait TorchLoss: Backend {
+        /// The loss of [`super::segmentation_dice_loss`], `[1]`.
+        fn segmentation_dice_loss_torch(
+            logits: FloatTensor<Self>,
+            allowed: FloatTensor<Self>,
+            weights: FloatTensor<Self>,
+            single: FloatTensor<Self>,
+            present: FloatTensor<Self>,
+            weight_sum: f64,
+            dice_weight: f64,
+        ) -> FloatTensor<Self>;
+    }
+
+    /// The kernel on the tensors; panics only on shapes `LossTargets` never builds.
+    fn kernel(
+        logits: &tch::Tensor,
+        [allowed, weights, single, present]: [&tch::Tensor; 4],
+        weight_sum: f64,
+        dice_weight: f64,
+    ) -> (tch::Tensor, tch::Tensor) {
+        let targets = LossInputs {
+            allowed,
+            weights,
+            single,
+            present,
+            weight_sum,
+        };
+        torch_kernels::segmentation_loss(logits, targets, dice_weight)
+            .unwrap_or_else(|error| panic!("the segmentation loss kernel: {error}"))
+    }
+
+    // Without autodiff (not used by training, but the extension needs it): the loss alone.
+    impl TorchLoss for LibTorch {
+        fn segmentation_dice_loss_torch(
+            logits: TchTensor,
+            allowed: TchTensor,
+            weights: TchTensor,
+            single: TchTensor,
+            present: TchTensor,
+            weight_sum: f64,
+            dice_weight: f64,
+        ) -> TchTensor {
+            let targets = [&allowed, &weights, &single, &present].map(|t| &t.tensor);
+            TchTensor::new(kernel(&logits.tensor, targets, weight_sum, dice_weight).0)
+        }
+    }
+
+    impl<C: CheckpointStrategy> TorchLoss for Autodiff<LibTorch, C> {
+        fn segmentation_dice_loss_torch(
+            logits: FloatTensor<Self>,
+            allowed: FloatTensor<Self>,
+            weights: FloatTensor<Self>,
+            single: FloatTensor<Self>,
+            present: FloatTensor<Self>,
+            weight_sum: f64,
+            dice_weight: f64,
+        ) -> FloatTensor<Self> {
+            let targets = [allowed, weights, single, present].map(Self::inner);
+            let targets = targets.each_ref().map(|t| &t.tensor);
+            let (logits, node) = logits.into_parts();
+            let (loss, grad) = kernel(&logits.tensor, targets, weight_sum, dice_weight);
+            match LossBackward.prepare::<C>([node]).compute_bound().stateful() {
+                OpsKind::Tracked(prep) => prep.finish(LogitsGradient(grad), TchTensor::new(loss)),
+                OpsKind::UnTracked(prep) => prep.finish(TchTensor::new(loss)),
+            }
+        }
+    }
+
+    /// The loss's gradient with respect to the logits, for a loss gradient of one.
+    struct LogitsGradient(tch::Tensor);
+
+    // burn's backward state must be `Clone`; a shallow clone shares the values.
+    impl Clone for LogitsGradient {
+        fn clone(&self) -> Self {
+            LogitsGradient(self.0.shallow_clone())
+        }
+    }
+
+    impl std::fmt::Debug for LogitsGradient {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.debug_tuple("LogitsGradient")
+                .field(&self.0.size())
+                .finish()
+        }
+    }
+
+    #[derive(Debug)]
+    struct LossBackward;
+
+    impl Backward<LibTorch, 1> for LossBackward {
+        type State = LogitsGradient;
+
+        fn backward(
+            self,
+            ops: Ops<Self::State, 1>,
+            grads: &mut Gradients,
+            _checkpointer: &mut Checkpointer,
+        ) {
+            let loss_grad: TchTensor = grads.consume::<LibTorch>(&ops.node);
+            let [Some(parent)] = &ops.parents else {
+                return;
+            };
+            let LogitsGradient(grad) = ops.state;
+            grads.register::<LibTorch>(parent.id, TchTensor::new(grad * loss_grad.tensor));
+        }
+    }
 }
 
 /// Error levels [`ErrorOrder`] tells apart: errors in [0, 1] are ordered by
@@ -613,5 +781,103 @@ mod tests {
                 .lovasz_weights(&[(0.5, false)])
                 .is_empty()
         );
+    }
+}
+
+/// The LibTorch kernel of [`segmentation_dice_loss`] against burn's tensor operations. Runs in
+/// a build with `--features libtorch` (not in CI, which has no libtorch: docs/gpu.md).
+#[cfg(all(test, feature = "libtorch"))]
+mod torch_tests {
+    use burn::tensor::{Distribution, Tensor};
+
+    use super::*;
+    use crate::qnet::tensor_values as values;
+
+    /// Two 48 × 50 images (more pixels than one block of the kernel, and a partial block), a
+    /// tenth of the pixels ignored, the second from a source that cannot label lane markings.
+    fn targets(device: &Device) -> LossTargets {
+        let plane = 48 * 50;
+        let labels: Vec<Vec<u8>> = (0..2u32)
+            .map(|b| {
+                (0..plane as u32)
+                    .map(|i| {
+                        let r = (i + 7919 * b).wrapping_mul(2_654_435_761) >> 24;
+                        if r % 10 == 0 { IGNORE } else { (r % 5) as u8 }
+                    })
+                    .collect()
+            })
+            .collect();
+        let unlabelable = [
+            vec![false; 5],
+            (0..5u8)
+                .map(|c| datasets::may_stand_for(0, c) || datasets::may_stand_for(4, c))
+                .collect::<Vec<_>>(),
+        ];
+        assert!(
+            unlabelable[1].contains(&true),
+            "the second source merges a class"
+        );
+        let refs: Vec<LabelRef<'_>> = labels
+            .iter()
+            .zip(&unlabelable)
+            .map(|(pixels, unlabelable)| LabelRef {
+                pixels,
+                unlabelable,
+            })
+            .collect();
+        LossTargets::new(&refs, [48, 50], &[0.6, 1.2, 1.0, 2.0, 0.5], device)
+    }
+
+    /// The loss and its gradient with respect to the logits.
+    fn loss_and_gradient(
+        logits: &Tensor<4>,
+        loss: impl Fn(Tensor<4>) -> Tensor<1>,
+    ) -> (Vec<f32>, Vec<f32>) {
+        let logits = logits.clone().detach().require_grad();
+        let value = loss(logits.clone());
+        let grads = value.clone().mul_scalar(0.5).backward();
+        let gradient = logits.grad(&grads).expect("a gradient of the logits");
+        (values(value), values(gradient))
+    }
+
+    #[test]
+    #[allow(deprecated)]
+    fn the_kernel_gives_burns_loss_and_gradient_whatever_the_threads() {
+        let device = Device::libtorch().autodiff();
+        let targets = targets(&device);
+        let logits = Tensor::<4>::random([2, 5, 48, 50], Distribution::Normal(0.0, 3.0), &device);
+        for dice_weight in [0.0, 2.0] {
+            let kernel = loss_and_gradient(&logits, |z| {
+                segmentation_dice_loss(z, &targets, dice_weight)
+            });
+            let burns = loss_and_gradient(&logits, |z| {
+                let loss = segmentation_loss(z.clone(), &targets);
+                loss + dice_loss(z, &targets).mul_scalar(dice_weight)
+            });
+            assert!(
+                (kernel.0[0] - burns.0[0]).abs() <= 1e-5 * burns.0[0].abs(),
+                "dice {dice_weight}: loss {} against burn's {}",
+                kernel.0[0],
+                burns.0[0]
+            );
+            let scale = burns.1.iter().fold(0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0);
+            for (i, (k, b)) in kernel.1.iter().zip(&burns.1).enumerate() {
+                assert!(
+                    (k - b).abs() <= 1e-4 * scale,
+                    "dice {dice_weight}: gradient[{i}] {k} against burn's {b}"
+                );
+            }
+            // The kernel sums in fixed blocks, so one thread gives the same bits as two.
+            crate::set_network_threads(1);
+            let one_thread = loss_and_gradient(&logits, |z| {
+                segmentation_dice_loss(z, &targets, dice_weight)
+            });
+            crate::set_network_threads(2);
+            assert_eq!(
+                one_thread, kernel,
+                "dice {dice_weight}: one thread against two"
+            );
+        }
     }
 }

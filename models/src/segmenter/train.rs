@@ -43,7 +43,8 @@ use super::eval::{Prediction, class_names, evaluate};
 use super::files::{load_record, save_model, save_record, write_atomic};
 use super::infer::{Inference, normalise};
 use super::loss::{
-    HardPixels, LabelRef, LossTargets, dice_loss, hard_pixel_loss, lovasz_loss, segmentation_loss,
+    HardPixels, LabelRef, LossTargets, dice_loss, hard_pixel_loss, lovasz_loss,
+    segmentation_dice_loss, segmentation_loss,
 };
 use super::metrics::MetricsSummary;
 use super::model::{PspNet, PspNetConfig};
@@ -635,12 +636,16 @@ fn batch_loss(
     let targets = LossTargets::new(&labels, [side, side], class_weights, device);
     let heads = model.forward_train(input, derive_seed(config.seed, STAGE_DROPOUT, micro_step));
     let mut loss = match &config.hard_pixels {
-        Some(hard) => hard_pixel_loss(heads.logits.clone(), &targets, hard),
-        None => segmentation_loss(heads.logits.clone(), &targets),
+        Some(hard) => {
+            let loss = hard_pixel_loss(heads.logits.clone(), &targets, hard);
+            if config.dice_weight > 0.0 {
+                loss + dice_loss(heads.logits.clone(), &targets).mul_scalar(config.dice_weight)
+            } else {
+                loss
+            }
+        }
+        None => segmentation_dice_loss(heads.logits.clone(), &targets, config.dice_weight),
     };
-    if config.dice_weight > 0.0 {
-        loss = loss + dice_loss(heads.logits.clone(), &targets).mul_scalar(config.dice_weight);
-    }
     if config.lovasz_weight > 0.0 {
         loss = loss + lovasz_loss(heads.logits, &targets).mul_scalar(config.lovasz_weight);
     }

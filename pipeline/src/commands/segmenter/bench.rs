@@ -13,7 +13,7 @@ use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor, TensorData};
 use clap::Args;
-use models::segmenter::loss::{LabelRef, LossTargets, segmentation_loss};
+use models::segmenter::loss::{LabelRef, LossTargets, segmentation_dice_loss};
 use models::segmenter::{PspNet, PspNetConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -183,7 +183,7 @@ fn training_steps(config: &PspNetConfig, args: &BenchArgs, device: &Device) -> R
             .bf16_convolutions
             .then(models::layers::Bf16Convolutions::enter);
         let heads = model.forward_train(x.clone(), step);
-        let loss = segmentation_loss(heads.logits, &targets);
+        let loss = segmentation_dice_loss(heads.logits, &targets, 0.0);
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optimizer.step(1e-4, model.clone(), grads);
         // Reading a weight back makes sure the update is done.
@@ -213,36 +213,40 @@ pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
         )
         .into());
     }
-    let (model, config) = match &args.model {
-        Some(dir) => open_model(dir, &device)?,
-        None => {
-            let mut config = PspNetConfig::new();
-            args.arch.apply(&mut config);
-            let model = config
-                .init(&device)
-                .map_err(|e| CliError::new(e.to_string(), "check the architecture options"))?;
-            (model, config)
-        }
-    };
     let mut progress = ctx.ui.progress("segmenter bench");
-    progress.step(&format!(
-        "inference: {} runs at {}x{}, batch {}, {} threads",
-        args.iterations, args.size, args.size, args.batch, args.threads
-    ));
-    let inference_ms = timing(with_threads(Some(args.threads), || {
-        inference(&model, args, &device)
-    })??);
-    let train_step_ms = if args.train_steps > 0 {
-        progress.step(&format!(
-            "training: {} steps, batch {}",
-            args.train_steps, args.train_batch
-        ));
-        Some(timing(with_threads(Some(args.threads), || {
-            training_steps(&config, args, &device)
-        })??))
-    } else {
-        None
-    };
+    // Everything on one thread of one pool: LibTorch's OpenMP starts a team of workers for each
+    // thread that runs its operations, and with more team threads than cores its idle workers
+    // stop spinning and sleep between operations (about 10 % of a training step here, which a
+    // training run, all on one thread, does not pay).
+    let (model, config, inference_ms, train_step_ms) =
+        with_threads(Some(args.threads), || -> Result<_> {
+            let (model, config) = match &args.model {
+                Some(dir) => open_model(dir, &device)?,
+                None => {
+                    let mut config = PspNetConfig::new();
+                    args.arch.apply(&mut config);
+                    let model = config.init(&device).map_err(|e| {
+                        CliError::new(e.to_string(), "check the architecture options")
+                    })?;
+                    (model, config)
+                }
+            };
+            progress.step(&format!(
+                "inference: {} runs at {}x{}, batch {}, {} threads",
+                args.iterations, args.size, args.size, args.batch, args.threads
+            ));
+            let inference_ms = timing(inference(&model, args, &device)?);
+            let train_step_ms = if args.train_steps > 0 {
+                progress.step(&format!(
+                    "training: {} steps, batch {}",
+                    args.train_steps, args.train_batch
+                ));
+                Some(timing(training_steps(&config, args, &device)?))
+            } else {
+                None
+            };
+            Ok((model, config, inference_ms, train_step_ms))
+        })??;
     drop(progress);
     let report = BenchReport {
         parameters: model.num_params(),
