@@ -7,7 +7,7 @@ frames the ten agents got right over all scored frames) and writes them as JSON.
 each on one thread (RAYON_NUM_THREADS=1); the agents are deterministic, so the figures do not depend on that.
 
     python3 scripts/replay_folds.py --pipeline target/release/pipeline --logs runs/ft \\
-        --config docs/configs/offline_ft_motion.toml --algorithm bc --work runs/ft/folds_bc --out FOLDS.json
+        --config configs/offline_ft_motion.toml --algorithm bc --work runs/ft/folds_bc --out FOLDS.json
 
 --logs holds ft_000.mcap ... ft_009.mcap (`pipeline logs convert`, docs/logs.md). A fold whose agent and replay
 are already in --work is not run again.
@@ -62,7 +62,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pipeline", default="target/release/pipeline")
     ap.add_argument("--logs", required=True, help="folder with ft_000.mcap ... ft_009.mcap")
-    ap.add_argument("--config", required=True, help="the offline agent's config (docs/configs/offline_ft*.toml)")
+    ap.add_argument("--config", required=True, help="the offline agent's config (configs/offline_ft_motion.toml)")
     ap.add_argument("--algorithm", default="cql", choices=["cql", "bc"])
     ap.add_argument("--aggressiveness", default="0,0.5,1")
     ap.add_argument("--seed", type=int, default=0)

@@ -128,9 +128,9 @@ mod tests {
         Ok(())
     }
 
-    /// The files of `docs/configs` whose name ends in `.ext`, sorted.
+    /// The files of `configs/` (the recipes the docs present) whose name ends in `.ext`, sorted.
     fn documented_configs(ext: &str) -> Result<Vec<PathBuf>, String> {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/configs");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
         let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
             .map_err(|e| format!("{}: {e}", dir.display()))?
             .filter_map(|entry| entry.ok().map(|e| e.path()))
@@ -140,12 +140,12 @@ mod tests {
         Ok(files)
     }
 
-    /// The files of `docs/configs` are how the docs' results are rerun: a renamed key or a
+    /// The files of `configs/` are how the docs' results are rerun: a renamed key or a
     /// removed option must fail here, not months later in someone's hour-long training run.
     #[test]
     fn every_documented_config_file_reads_and_its_dqn_settings_validate() -> Result<(), String> {
         let files = documented_configs("toml")?;
-        assert!(!files.is_empty(), "no config files in docs/configs");
+        assert!(!files.is_empty(), "no config files in configs/");
         for file in &files {
             let config = Config::load(Some(file)).map_err(|e| format!("{e:#}"))?;
             config
@@ -157,12 +157,12 @@ mod tests {
         Ok(())
     }
 
-    /// The segmenter settings of `docs/configs` (`segmenter train --settings FILE`) must
+    /// The segmenter settings of `configs/` (`segmenter train --settings FILE`) must
     /// still read as a training config and pass its checks.
     #[test]
     fn every_documented_segmenter_settings_file_reads_and_validates() -> Result<(), String> {
         let files = documented_configs("json")?;
-        assert!(!files.is_empty(), "no segmenter settings in docs/configs");
+        assert!(!files.is_empty(), "no segmenter settings in configs/");
         for file in &files {
             let config = models::segmenter::train::load_training_config(file)
                 .map_err(|e| format!("{}: {e}", file.display()))?;
