@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Speed of the segmentation-data stage (issue 3, acceptance 5), ours and the peer in one run.
+"""Speed of the segmentation-data stage, ours and the peer (albumentations) in one run.
 
 1. Generation: `pipeline dataset generate --count N --size 256x256` on the bundled campus
    (imported once beforehand, untimed), whole process wall time including rendering, PNG

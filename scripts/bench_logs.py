@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Speed of the log reader (issue 7, acceptance 6): ours and the Python readers in one run.
+"""Speed of the log reader: ours and the Python readers in one run.
 
 The Husky drive (16,806 messages: IMU, wheel odometry, GPS) in its three storages under
 ../shared/data/logs/husky: plain MCAP (lz4 chunks), rosbag2 with MCAP storage (zstd chunks) and

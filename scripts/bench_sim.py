@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Roundabout-insertion throughput against highway-env roundabout-v0, in one run (issue 5, acceptance 1).
+"""Roundabout-insertion throughput against highway-env roundabout-v0, in one run.
 
 Both sides: policy steps per CPU-second, a random policy, the same number of steps,
 episodes reset inside the timed loop.

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How far do simple observations explain the FT drivers' go / wait decisions?
 
-Issue 7 asks an agent to agree with the drivers at least 90 % of the frames of FT 008-009. This script
+The agents are judged by how many of the FT drivers' go and wait frames they agree with. This script
 estimates what a strong classifier on hand-made features reaches, as a yardstick for the agents:
 gradient-boosted trees (scikit-learn's HistGradientBoostingClassifier) trained on the go and wait frames
 of FT 000-007 and scored on 008-009, then every recording held out in turn. The features come from

@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 4, point 5: `kill -9` during `pipeline segmenter train`, then `--resume`; compares the
+# `kill -9` during `pipeline segmenter train`, then `--resume`; compares the
 # resumed run with an uninterrupted one (checkpoint bytes and curve points).
 # Usage: scripts/segmenter_kill_resume.sh PIPELINE_BINARY DATASET_DIR WORK_DIR
 set -euo pipefail

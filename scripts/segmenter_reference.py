@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference outputs for the segmenter's numerics test (issue 4, acceptance 4).
+"""Reference outputs for the segmenter's numerics test (models/tests/segmenter_reference.rs).
 
 Builds small networks of the same architecture as models/src/segmenter/model.rs in PyTorch
 (module names equal to the burn field names), fills them with fixed weights from a seeded
