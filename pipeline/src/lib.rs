@@ -7,6 +7,7 @@ pub mod clip;
 pub mod commands;
 pub mod config;
 pub mod error;
+pub mod inputs;
 pub mod output;
 pub mod recording;
 pub mod ui;

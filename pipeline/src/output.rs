@@ -199,6 +199,14 @@ fn process_is_alive(pid: u32) -> bool {
     }
 }
 
+/// Writes `value` as pretty JSON with a final newline, atomically.
+pub fn write_json<T: serde::Serialize + ?Sized>(path: &Path, value: &T) -> Result<()> {
+    let mut text = serde_json::to_string_pretty(value)
+        .with_context(|| format!("{}: serialisation failed", path.display()))?;
+    text.push('\n');
+    write_file_atomic(path, text.as_bytes())
+}
+
 /// Writes a file atomically: a temporary sibling, then a rename.
 pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let name = path

@@ -1,7 +1,7 @@
 //! `pipeline map import | info | route`.
 
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{Context as _, Result};
 use maps::build::UTurns;
@@ -20,12 +20,12 @@ use crate::cli::{
 };
 use crate::clip::{parse_bbox, parse_lat_lon, parse_pair, read_polygon_file};
 use crate::error::{CliError, FileRole, map_error};
+use crate::inputs::load_map;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 use crate::recording;
 
 /// The files `map import` writes.
-pub const MAP_JSON: &str = "map.json";
-pub const MAP_BIN: &str = "map.bin";
+pub use crate::inputs::{MAP_BIN, MAP_JSON};
 pub const MAP_GEOJSON: &str = "map.geojson";
 pub const PREVIEW_PNG: &str = "preview.png";
 pub const SUMMARY_JSON: &str = "summary.json";
@@ -437,28 +437,6 @@ fn write_outputs(
     text.push('\n');
     write(SUMMARY_JSON, text.as_bytes())?;
     Ok(())
-}
-
-/// A map from a file (JSON or binary) or from a map folder (its map.bin, else map.json).
-pub fn load_map(path: &Path) -> Result<(Map, PathBuf, MapFileForm)> {
-    let file = if path.is_dir() {
-        [MAP_BIN, MAP_JSON]
-            .iter()
-            .map(|n| path.join(n))
-            .find(|p| p.is_file())
-            .ok_or_else(|| {
-                CliError::file(
-                    path,
-                    format!("no {MAP_BIN} or {MAP_JSON} in this folder"),
-                    "give a folder written by `pipeline map import`, or a map file",
-                )
-            })?
-    } else {
-        path.to_path_buf()
-    };
-    let (map, form) =
-        maps::io::load_with_form(&file).map_err(|e| map_error(&file, e, FileRole::MapFile))?;
-    Ok((map, file, form))
 }
 
 fn info(ctx: &Context<'_>, args: &InfoArgs) -> Result<()> {

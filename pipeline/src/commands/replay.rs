@@ -43,10 +43,11 @@ use sim::tasks::insertion::{
 use sim::{Observation, ObservationSpec};
 
 use super::Context;
-use super::agent::train::{models_error, read_task, write_json};
-use super::dataset::generate::load_input_map;
+use super::agent::train::{models_error, read_task};
 use super::logs::{RoleArgs, log_error, objects_topic};
 use crate::error::CliError;
+use crate::inputs::load_or_import_map;
+use crate::output::write_json;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 
 pub const REPLAY_JSON: &str = "replay.json";
@@ -731,7 +732,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     AtomicDir::check_destination(&out, MARKERS)?;
     let mut progress = ctx.ui.progress("replay eval");
     progress.step(&format!("reading {}", args.map.display()));
-    let map = load_input_map(&args.map)?;
+    let map = load_or_import_map(&args.map)?;
     if map.roundabouts.is_empty() {
         return Err(CliError::file(
             &args.map,

@@ -24,10 +24,11 @@ use sim::world::TrafficLevel;
 use sim::{Env as _, ObservationSpec};
 
 use super::tasks::{GenericTask, Insertion, Obstacle, RoundaboutDriving, Route, TaskKind};
-use super::train::{models_error, read_task, write_json};
+use super::train::{models_error, read_task};
 use super::{EvalArgs, Task, TaskRecord, episodes};
 use crate::commands::Context;
 use crate::error::CliError;
+use crate::output::write_json;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 use crate::recording::Stream;
 use crate::ui::Progress;

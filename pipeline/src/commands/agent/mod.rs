@@ -29,8 +29,7 @@ use sim::tasks::{InsertionConfig, InsertionSetup};
 use sim::world::TrafficLevel;
 
 use super::Context;
-use super::map::load_map;
-use crate::error::{CliError, FileRole, map_error};
+use crate::error::CliError;
 
 pub fn run(ctx: &Context<'_>, command: &AgentCommand) -> Result<()> {
     match command {
@@ -251,26 +250,6 @@ impl TaskRecord {
 }
 
 pub const TASK_FILE: &str = "task.json";
-
-/// A map from a `pipeline map import` folder or file, or imported from an OSM / Lanelet2
-/// file with the default options.
-pub fn load_or_import_map(path: &Path) -> Result<Map> {
-    let is_osm = {
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().to_lowercase())
-            .unwrap_or_default();
-        [".osm", ".osm.gz", ".osm.pbf", ".pbf"]
-            .iter()
-            .any(|ext| name.ends_with(ext))
-    };
-    if is_osm && path.is_file() {
-        maps::build::import_file(path, &maps::ImportOptions::default())
-            .map_err(|e| map_error(path, e, FileRole::OsmInput))
-    } else {
-        Ok(load_map(path)?.0)
-    }
-}
 
 /// The roundabout-insertion setup of `map` (its roundabouts' routes and rasters).
 pub fn insertion_setup(

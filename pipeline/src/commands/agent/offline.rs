@@ -35,13 +35,14 @@ use serde::Serialize;
 use sim::tasks::insertion::{AGGRESSIVENESS_SCALAR, Action, LAST_ACTION_SCALARS, RewardConfig};
 use sim::world::TrafficLevel;
 
-use super::train::{AGENT_MARKERS, models_error, write_json};
+use super::train::{AGENT_MARKERS, models_error};
 use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
 use crate::commands::Context;
-use crate::commands::dataset::generate::load_input_map;
 use crate::commands::replay::{Views, read_log};
 use crate::error::CliError;
+use crate::inputs::load_or_import_map;
 use crate::output::AtomicDir;
+use crate::output::write_json;
 
 /// The offline run's description beside the agent (`offline.json`).
 pub const OFFLINE_FILE: &str = "offline.json";
@@ -116,7 +117,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         .map_err(|e| CliError::new(format!("[agent.offline]: {e}"), "see docs/agents.md"))?;
 
     progress.step(&format!("reading {}", map_path.display()));
-    let map = load_input_map(map_path)?;
+    let map = load_or_import_map(map_path)?;
     if map.roundabouts.is_empty() {
         return Err(CliError::file(
             map_path,

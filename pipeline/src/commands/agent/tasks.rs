@@ -32,8 +32,9 @@ use sim::eval::{Condition, EVAL_STAGE, EvalOptions, evaluate};
 use sim::seed::derive_seed;
 use sim::tasks::{TaskResult, run_episodes};
 
-use super::{AgentConfig, TaskRecord, episodes, insertion_setup, load_or_import_map};
+use super::{AgentConfig, TaskRecord, episodes, insertion_setup};
 use crate::error::CliError;
+use crate::inputs::load_or_import_map;
 use crate::recording::Stream;
 
 /// The task-specific parts of training and evaluating an agent.

@@ -27,7 +27,7 @@ use super::validation::{VALIDATION_FILE, Validation, ValidationPoint, validation
 use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
 use crate::commands::Context;
 use crate::error::CliError;
-use crate::output::{AtomicDir, Markers, write_file_atomic};
+use crate::output::{AtomicDir, Markers, write_json};
 use crate::ui::Progress;
 
 /// A folder holding any of these is an earlier agent that may be replaced.
@@ -323,13 +323,6 @@ pub fn models_error(e: ModelError, context: &Path) -> anyhow::Error {
         .into(),
         ModelError::Config(_) => CliError::file(context, e, "check [agent.dqn] in --config").into(),
     }
-}
-
-pub fn write_json<T: Serialize + ?Sized>(path: &Path, value: &T) -> Result<()> {
-    let mut text = serde_json::to_string_pretty(value)
-        .with_context(|| format!("{}: serialisation failed", path.display()))?;
-    text.push('\n');
-    write_file_atomic(path, text.as_bytes())
 }
 
 /// Progress line, rerun curves and checkpoints of a training run.

@@ -26,10 +26,11 @@ use models::policy::QPolicy;
 use serde::{Deserialize, Serialize};
 use sim::seed::derive_seed;
 
-use super::train::{AGENT_MARKERS, write_json};
+use super::train::AGENT_MARKERS;
 use super::{TASK_FILE, TaskRecord};
 use crate::error::CliError;
 use crate::output::AtomicDir;
+use crate::output::write_json;
 
 /// `[agent.validation]` of the config file.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]

@@ -18,13 +18,12 @@ use datasets::manifest::{
 };
 use datasets::render::TopdownConfig;
 use image::{GrayImage, RgbImage};
-use maps::Map;
 use rayon::prelude::*;
 use serde_json::json;
 
 use crate::commands::Context;
-use crate::commands::map::load_map;
-use crate::error::{CliError, FileRole, map_error};
+use crate::error::CliError;
+use crate::inputs::load_or_import_map;
 use crate::output::{AtomicDir, Markers};
 use crate::recording;
 
@@ -162,35 +161,6 @@ fn parse_range(s: &str) -> std::result::Result<(u32, u32), String> {
     Ok((parse(lo)?, parse(hi)?))
 }
 
-/// Whether a path names an OSM file (by its extension) rather than a native map.
-fn is_osm_file(path: &Path) -> bool {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    [".osm", ".osm.gz", ".pbf", ".osm.xml"]
-        .iter()
-        .any(|ext| name.ends_with(ext))
-}
-
-/// Loads a native map, or imports an OSM file with the default options.
-pub fn load_input_map(path: &Path) -> Result<Map> {
-    if !path.exists() {
-        return Err(CliError::file(
-            path,
-            "no such file or folder",
-            "give --map a map folder, map.json / map.bin, or an .osm / .osm.pbf file",
-        )
-        .into());
-    }
-    if is_osm_file(path) {
-        maps::import_file(path, &maps::ImportOptions::default())
-            .map_err(|e| map_error(path, e, FileRole::OsmInput))
-    } else {
-        Ok(load_map(path)?.0)
-    }
-}
-
 /// The manifest entry of an item.
 fn manifest_item(item: &GeneratedItem, topdown: bool) -> Result<Item> {
     let mut params =
@@ -273,7 +243,7 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
     AtomicDir::check_destination(&out, DATASET_MARKERS)?;
     let mut progress = ctx.ui.progress("dataset generate");
     progress.step(&format!("reading {}", args.map.display()));
-    let map = load_input_map(&args.map)?;
+    let map = load_or_import_map(&args.map)?;
 
     progress.step("building the scene");
     let generator = Generator::new(&map, config.clone(), ctx.cli.seed).map_err(|e| {
@@ -395,15 +365,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn sizes_and_osm_names() {
+    fn sizes_parse() {
         assert_eq!(parse_size("480x270"), Ok((480, 270)));
         assert_eq!(parse_size("512X512"), Ok((512, 512)));
         assert!(parse_size("512").is_err());
         assert!(parse_size("ax2").is_err());
-        assert!(is_osm_file(Path::new("data/osm/northwestern_nu.osm.pbf")));
-        assert!(is_osm_file(Path::new("x.OSM")));
-        assert!(!is_osm_file(Path::new("runs/campus/map.bin")));
-        assert!(!is_osm_file(Path::new("runs/campus")));
     }
 
     #[test]

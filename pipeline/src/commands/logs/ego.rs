@@ -14,8 +14,8 @@ use serde_json::json;
 
 use super::{RoleArgs, log_error, topic_roles};
 use crate::commands::Context;
-use crate::commands::dataset::generate::load_input_map;
 use crate::error::CliError;
+use crate::inputs::load_or_import_map;
 use crate::output::write_file_atomic;
 
 #[derive(Debug, Args)]
@@ -72,7 +72,7 @@ pub fn run(ctx: &Context<'_>, args: &EgoArgs) -> Result<()> {
     }
     let mut progress = ctx.ui.progress("logs ego");
     progress.step(&format!("reading {}", args.map.display()));
-    let map = load_input_map(&args.map)?;
+    let map = load_or_import_map(&args.map)?;
     progress.step(&format!("reading {}", args.log.display()));
     let log = Log::open(&args.log).map_err(log_error)?;
     let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;

@@ -28,8 +28,8 @@ use sim::render::{BevConfig, BevRenderer, Layer};
 
 use super::{RoleArgs, log_error, objects_topic};
 use crate::commands::Context;
-use crate::commands::dataset::generate::load_input_map;
 use crate::error::CliError;
+use crate::inputs::load_or_import_map;
 use crate::output::AtomicDir;
 use crate::recording::{log_actors, log_layers, log_map};
 
@@ -171,7 +171,7 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
     AtomicDir::check_destination(&out, MARKERS)?;
     let mut progress = ctx.ui.progress("logs project");
     progress.step(&format!("reading {}", args.map.display()));
-    let map = Arc::new(load_input_map(&args.map)?);
+    let map = Arc::new(load_or_import_map(&args.map)?);
     progress.step(&format!("reading {}", args.log.display()));
     let log = Log::open(&args.log).map_err(log_error)?;
     let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;

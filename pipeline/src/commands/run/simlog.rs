@@ -69,7 +69,7 @@ struct Recorded {
 
 pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
     let seconds = env.profile.logs.seconds;
-    let (map, _, _) = crate::commands::map::load_map(&env.run_dir.join(ROUNDABOUT_MAP))?;
+    let (map, _, _) = crate::inputs::load_map(&env.run_dir.join(ROUNDABOUT_MAP))?;
     let map = Arc::new(map);
     let setup = InsertionSetup::new(Arc::clone(&map), env.ctx.config.agent.task.clone())
         .map_err(|e| anyhow::anyhow!("{}: {e}", ROUNDABOUT_MAP))?;
