@@ -6,7 +6,6 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::MapError;
-use crate::geometry::Point;
 use crate::model::{DrivingSide, Map};
 use crate::osm::{OsmData, read_osm_file};
 use crate::profile::RoadProfile;
@@ -31,7 +30,7 @@ pub enum UTurns {
     Everywhere,
 }
 
-/// A region to keep: a bounding box or a polygon, in WGS84.
+/// A region to keep: a bounding box, or polygons with holes, in WGS84.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Clip {
@@ -39,21 +38,83 @@ pub enum Clip {
         min: LatLon,
         max: LatLon,
     },
-    /// A closed ring (the last point may repeat the first).
-    Polygon {
-        ring: Vec<LatLon>,
+    /// Polygons (a GeoJSON Polygon or MultiPolygon, an Osmosis `.poly` file): a point is kept
+    /// when it lies inside one polygon's outer ring and inside none of that polygon's holes.
+    Polygons {
+        polygons: Vec<ClipPolygon>,
     },
 }
 
+/// One polygon of a clip region: an outer ring and its holes, each closed (the last point
+/// may repeat the first).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClipPolygon {
+    pub outer: Vec<LatLon>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub holes: Vec<Vec<LatLon>>,
+}
+
 impl Clip {
+    /// A single polygon without holes.
+    pub fn polygon(ring: Vec<LatLon>) -> Self {
+        Clip::Polygons {
+            polygons: vec![ClipPolygon {
+                outer: ring,
+                holes: Vec::new(),
+            }],
+        }
+    }
+
+    /// The region prepared for many [`ClipRegion::contains`] calls.
+    pub fn region(&self) -> ClipRegion {
+        match self {
+            Clip::BoundingBox { min, max } => ClipRegion::BoundingBox {
+                min: *min,
+                max: *max,
+            },
+            Clip::Polygons { polygons } => {
+                let ring = |r: &[LatLon]| -> geo::LineString<f64> {
+                    r.iter()
+                        .map(|p| geo::coord! { x: p.lon, y: p.lat })
+                        .collect()
+                };
+                ClipRegion::Polygons(geo::MultiPolygon(
+                    polygons
+                        .iter()
+                        .map(|p| {
+                            geo::Polygon::new(
+                                ring(&p.outer),
+                                p.holes.iter().map(|h| ring(h)).collect(),
+                            )
+                        })
+                        .collect(),
+                ))
+            }
+        }
+    }
+
+    pub fn contains(&self, p: LatLon) -> bool {
+        self.region().contains(p)
+    }
+}
+
+/// A [`Clip`] ready for point tests (the polygons built once, as `geo` polygons).
+#[derive(Debug, Clone)]
+pub enum ClipRegion {
+    BoundingBox { min: LatLon, max: LatLon },
+    Polygons(geo::MultiPolygon<f64>),
+}
+
+impl ClipRegion {
+    /// Whether `p` lies in the region (a point on a polygon's edge counts as inside).
     pub fn contains(&self, p: LatLon) -> bool {
         match self {
-            Clip::BoundingBox { min, max } => {
+            ClipRegion::BoundingBox { min, max } => {
                 p.lat >= min.lat && p.lat <= max.lat && p.lon >= min.lon && p.lon <= max.lon
             }
-            Clip::Polygon { ring } => {
-                let poly: Vec<Point> = ring.iter().map(|q| Point::new(q.lon, q.lat)).collect();
-                crate::geometry::point_in_polygon(Point::new(p.lon, p.lat), &poly)
+            ClipRegion::Polygons(polygons) => {
+                use geo::Intersects as _;
+                polygons.intersects(&geo::Point::new(p.lon, p.lat))
             }
         }
     }

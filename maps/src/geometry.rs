@@ -250,21 +250,6 @@ pub fn convex_hull(points: &[Point]) -> Vec<Point> {
     hull
 }
 
-/// Whether `p` lies inside a polygon (even-odd rule).
-pub fn point_in_polygon(p: Point, poly: &[Point]) -> bool {
-    let n = poly.len();
-    let mut inside = false;
-    let mut j = n.wrapping_sub(1);
-    for i in 0..n {
-        let (a, b) = (poly[i], poly[j]);
-        if (a.y > p.y) != (b.y > p.y) && p.x < (b.x - a.x) * (p.y - a.y) / (b.y - a.y) + a.x {
-            inside = !inside;
-        }
-        j = i;
-    }
-    inside
-}
-
 /// Axis-aligned bounding box.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Bounds {
@@ -341,8 +326,6 @@ mod tests {
         let hull = convex_hull(&pts);
         assert_eq!(hull.len(), 4);
         assert!((signed_area(&hull) - 1.0).abs() < 1e-12);
-        assert!(point_in_polygon(Point::new(0.5, 0.5), &hull));
-        assert!(!point_in_polygon(Point::new(1.5, 0.5), &hull));
     }
 
     proptest! {

@@ -105,66 +105,34 @@ impl LaneGraph {
         self.lanes.is_empty()
     }
 
-    /// Strongly connected components as lists of node indices (iterative Tarjan, so deep
-    /// graphs cannot overflow the stack). Each component is sorted; components come in the
-    /// order Tarjan closes them.
+    /// Strongly connected components as lists of node indices (petgraph's Kosaraju, whose
+    /// searches keep their own stack, so deep graphs cannot overflow the thread's: petgraph's
+    /// Tarjan recurses and overflows on the 50,000-lane ring of the test below). Each component is sorted.
     pub fn components(&self) -> Vec<Vec<usize>> {
-        const UNVISITED: usize = usize::MAX;
-        let n = self.len();
-        let mut index = vec![UNVISITED; n];
-        let mut low = vec![0usize; n];
-        let mut on_stack = vec![false; n];
-        let mut stack: Vec<usize> = Vec::new();
-        let mut out = Vec::new();
-        let mut next = 0usize;
-        // Call stack of (node, position in its edge list).
-        let mut call: Vec<(usize, usize)> = Vec::new();
-        for root in 0..n {
-            if index[root] != UNVISITED {
-                continue;
-            }
-            call.push((root, 0));
-            index[root] = next;
-            low[root] = next;
-            next += 1;
-            stack.push(root);
-            on_stack[root] = true;
-            while let Some(top) = call.last_mut() {
-                let v = top.0;
-                if let Some(edge) = self.edges[v].get(top.1) {
-                    top.1 += 1;
-                    let w = edge.to;
-                    if index[w] == UNVISITED {
-                        index[w] = next;
-                        low[w] = next;
-                        next += 1;
-                        stack.push(w);
-                        on_stack[w] = true;
-                        call.push((w, 0));
-                    } else if on_stack[w] {
-                        low[v] = low[v].min(index[w]);
-                    }
-                    continue;
-                }
-                call.pop();
-                if let Some(&(parent, _)) = call.last() {
-                    low[parent] = low[parent].min(low[v]);
-                }
-                if low[v] == index[v] {
-                    let mut comp = Vec::new();
-                    while let Some(w) = stack.pop() {
-                        on_stack[w] = false;
-                        comp.push(w);
-                        if w == v {
-                            break;
-                        }
-                    }
-                    comp.sort_unstable();
-                    out.push(comp);
-                }
+        let mut graph = petgraph::graph::DiGraph::<(), ()>::with_capacity(
+            self.len(),
+            self.edges.iter().map(Vec::len).sum(),
+        );
+        for _ in 0..self.len() {
+            graph.add_node(());
+        }
+        for (from, edges) in self.edges.iter().enumerate() {
+            for edge in edges {
+                graph.add_edge(
+                    petgraph::graph::NodeIndex::new(from),
+                    petgraph::graph::NodeIndex::new(edge.to),
+                    (),
+                );
             }
         }
-        out
+        petgraph::algo::kosaraju_scc(&graph)
+            .into_iter()
+            .map(|c| {
+                let mut c: Vec<usize> = c.into_iter().map(|n| n.index()).collect();
+                c.sort_unstable();
+                c
+            })
+            .collect()
     }
 }
 
@@ -225,7 +193,11 @@ pub(crate) mod test_maps {
             .join("../../shared/data/osm")
             .join(file);
         if !path.exists() {
-            eprintln!("skipped: {} not found", path.display());
+            eprintln!(
+                "skipped: {}: {} not found",
+                std::thread::current().name().unwrap_or("-"),
+                path.display()
+            );
             return None;
         }
         Some(crate::build::import_file(&path, &Default::default()).unwrap())

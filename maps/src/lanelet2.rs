@@ -19,7 +19,7 @@
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BTreeSet, BinaryHeap, VecDeque};
 
-use crate::build::{Clip, ImportOptions};
+use crate::build::{Clip, ClipRegion, ImportOptions};
 use crate::error::MapError;
 use crate::geometry::{
     Point, convex_hull, direction_at, point_at, polyline_length, project_onto_polyline,
@@ -90,7 +90,8 @@ pub fn build_lanelet2_map(osm: &OsmData, options: &ImportOptions) -> Result<Map,
     map.report.invalid_nodes = osm.invalid_nodes.len();
     let projector = projection.projector();
 
-    let lanelets = read_lanelets(osm, &projector, options.clip.as_ref(), &mut map.report);
+    let clip = options.clip.as_ref().map(Clip::region);
+    let lanelets = read_lanelets(osm, &projector, clip.as_ref(), &mut map.report);
     if lanelets.is_empty() {
         return Err(MapError::Invalid {
             path: None,
@@ -189,7 +190,7 @@ fn last(pts: &[Point]) -> Point {
 fn read_lanelets(
     osm: &OsmData,
     projector: &Projector,
-    clip: Option<&Clip>,
+    clip: Option<&ClipRegion>,
     report: &mut ImportReport,
 ) -> Vec<Lanelet> {
     let speeds = speed_limit_elements(osm);
@@ -258,7 +259,7 @@ fn read_lanelet(
     id: i64,
     rel: &OsmRelation,
     projector: &Projector,
-    clip: Option<&Clip>,
+    clip: Option<&ClipRegion>,
     speeds: &BTreeMap<i64, f64>,
 ) -> Result<Lanelet, Skip> {
     let (left_way, right_way) = bound_ways(rel).ok_or(Skip::NoBounds)?;
@@ -330,7 +331,7 @@ fn bound_points(
     osm: &OsmData,
     way_id: i64,
     projector: &Projector,
-    clip: Option<&Clip>,
+    clip: Option<&ClipRegion>,
 ) -> Result<(Vec<i64>, Vec<Point>), Skip> {
     let way = osm.ways.get(&way_id).ok_or(Skip::MissingWay(way_id))?;
     if way.nodes.len() < 2 {
@@ -1589,7 +1590,11 @@ mod tests {
         if dir.is_dir() {
             Some(dir)
         } else {
-            eprintln!("skipped: {} not found", dir.display());
+            eprintln!(
+                "skipped: {}: {} not found",
+                std::thread::current().name().unwrap_or("-"),
+                dir.display()
+            );
             None
         }
     }

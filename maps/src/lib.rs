@@ -4,7 +4,7 @@
 //! [`invariants::check_invariants`]. The result is a [`Map`]: roads, lanes with boundaries,
 //! junction areas and lane-to-lane connections, roundabouts with their entries, exits and
 //! yield lines, stop lines and markings, in a local metric frame whose WGS84 origin it keeps.
-//! On top of it: routing ([`route`]), rasters ([`raster`]), GeoJSON ([`geojson`]), the
+//! On top of it: routing ([`route`]), a spatial index of lanes ([`spatial`]), rasters ([`raster`]), GeoJSON ([`geojson`]), the
 //! native file forms ([`io`]) and the `summary.json` figures ([`summary`]).
 //!
 //! A library never prints: progress and problems come back as values and [`MapError`].
@@ -24,6 +24,7 @@ pub mod profile;
 pub mod projection;
 pub mod raster;
 pub mod route;
+pub mod spatial;
 pub mod summary;
 pub mod tags;
 

@@ -12,9 +12,10 @@ use std::collections::BinaryHeap;
 use serde::{Deserialize, Serialize};
 
 use crate::error::MapError;
-use crate::geometry::{Point, polyline_length, project_onto_polyline, slice_polyline};
+use crate::geometry::{Point, polyline_length, slice_polyline};
 use crate::graph::LaneGraph;
 use crate::model::{ConnectionId, LaneId, Map};
+use crate::spatial::LaneIndex;
 
 /// Spacing of route waypoints, metres.
 pub const WAYPOINT_SPACING_M: f64 = 1.0;
@@ -59,32 +60,15 @@ pub struct Route {
 pub struct Router<'a> {
     map: &'a Map,
     graph: LaneGraph,
-    /// Bounding box of each node's centre line, for quick rejection while snapping.
-    boxes: Vec<(Point, Point)>,
+    /// The car lanes' centre lines, for snapping points to lanes.
+    index: LaneIndex,
     max_speed_mps: f64,
 }
 
 impl<'a> Router<'a> {
     pub fn new(map: &'a Map) -> Self {
         let graph = LaneGraph::new(map, true);
-        let boxes = graph
-            .lanes
-            .iter()
-            .map(|id| {
-                let mut lo = Point::new(f64::INFINITY, f64::INFINITY);
-                let mut hi = Point::new(f64::NEG_INFINITY, f64::NEG_INFINITY);
-                for p in map
-                    .lanes
-                    .get(id)
-                    .map(|l| l.centre.as_slice())
-                    .unwrap_or_default()
-                {
-                    lo = Point::new(lo.x.min(p.x), lo.y.min(p.y));
-                    hi = Point::new(hi.x.max(p.x), hi.y.max(p.y));
-                }
-                (lo, hi)
-            })
-            .collect();
+        let index = LaneIndex::new(map, graph.lanes.iter().copied());
         let max_speed_mps = graph
             .speed_mps
             .iter()
@@ -93,7 +77,7 @@ impl<'a> Router<'a> {
         Router {
             map,
             graph,
-            boxes,
+            index,
             max_speed_mps,
         }
     }
@@ -112,22 +96,15 @@ impl<'a> Router<'a> {
                 p.x, p.y
             )));
         }
-        let mut best: Option<(LanePosition, f64)> = None;
-        for (i, id) in self.graph.lanes.iter().enumerate() {
-            let (lo, hi) = self.boxes[i];
-            let dx = (lo.x - p.x).max(p.x - hi.x).max(0.0);
-            let dy = (lo.y - p.y).max(p.y - hi.y).max(0.0);
-            if best.is_some_and(|(_, d)| dx.hypot(dy) >= d) {
-                continue;
-            }
-            let Some(lane) = self.map.lanes.get(id) else {
-                continue;
-            };
-            let (s_m, d) = project_onto_polyline(&lane.centre, p);
-            if best.is_none_or(|(_, bd)| d < bd) {
-                best = Some((LanePosition { lane: *id, s_m }, d));
-            }
-        }
+        let best = self.index.nearest(self.map, p).map(|n| {
+            (
+                LanePosition {
+                    lane: n.lane,
+                    s_m: n.s_m,
+                },
+                n.distance_m,
+            )
+        });
         best.ok_or_else(|| MapError::NoRoute("the map has no car lanes".into()))
     }
 
@@ -457,6 +434,7 @@ pub fn route_lanes(map: &Map, from: LaneId, to: LaneId) -> Result<Route, MapErro
 #[allow(clippy::unwrap_used, clippy::print_stderr)]
 mod tests {
     use super::*;
+    use crate::geometry::project_onto_polyline;
     use crate::graph::test_maps;
 
     fn check_route(map: &Map, r: &Route) {

@@ -14,7 +14,11 @@ fn data(rel: &str) -> Option<PathBuf> {
     if p.exists() {
         Some(p)
     } else {
-        eprintln!("skipped: {} not found", p.display());
+        eprintln!(
+            "skipped: {}: {} not found",
+            std::thread::current().name().unwrap_or("-"),
+            p.display()
+        );
         None
     }
 }

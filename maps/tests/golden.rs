@@ -94,7 +94,11 @@ fn frederiksted() {
 fn interaction_ft() {
     let input = shared_data().join("trajectories/interaction/maps/DR_USA_Roundabout_FT.osm");
     if !input.exists() {
-        eprintln!("skipped: {} not found", input.display());
+        eprintln!(
+            "skipped: {}: {} not found",
+            std::thread::current().name().unwrap_or("-"),
+            input.display()
+        );
         return;
     }
     run_case("DR_USA_Roundabout_FT", &input, false);

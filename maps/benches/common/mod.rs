@@ -21,7 +21,11 @@ pub fn osm_file(name: &str) -> Option<PathBuf> {
     } else {
         #[allow(clippy::print_stderr)]
         {
-            eprintln!("skipped: {} not found", path.display());
+            eprintln!(
+                "skipped: {}: {} not found",
+                std::thread::current().name().unwrap_or("-"),
+                path.display()
+            );
         }
         None
     }

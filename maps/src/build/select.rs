@@ -11,7 +11,7 @@ use crate::osm::{OsmData, Tags};
 use crate::projection::{LatLon, Projection};
 use crate::tags;
 
-use super::ImportOptions;
+use super::{Clip, ImportOptions};
 
 /// Per road, what the later steps need from its way.
 #[derive(Debug, Clone)]
@@ -71,6 +71,7 @@ impl<'a> Builder<'a> {
         // Node runs per selected way: clipping can cut one way into several runs.
         let mut runs: Vec<(i64, Vec<i64>)> = Vec::new();
         let mut selected = 0usize;
+        let clip = options.clip.as_ref().map(Clip::region);
         for (&way_id, way) in &osm.ways {
             if !options.profile.selects(&way.tags) {
                 continue;
@@ -84,8 +85,7 @@ impl<'a> Builder<'a> {
             nodes.dedup();
             let mut current: Vec<i64> = Vec::new();
             for n in nodes {
-                let inside = options
-                    .clip
+                let inside = clip
                     .as_ref()
                     .is_none_or(|c| osm.nodes.get(&n).is_some_and(|node| c.contains(node.pos)));
                 if inside {
