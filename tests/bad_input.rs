@@ -357,7 +357,10 @@ fn a_backend_this_build_lacks_is_refused_with_the_rebuild_command() {
         ("libtorch", cfg!(feature = "libtorch")),
     ] {
         if built {
-            println!("skipped: this build has {device}");
+            println!(
+                "skipped: {}: this build has {device}",
+                std::thread::current().name().unwrap_or("-")
+            );
             continue;
         }
         let out = tmp.path().join(device);

@@ -19,7 +19,10 @@ use common::{assert_refused, assert_success, pipeline, read_json, shared_data, s
 /// The FT map, and recording `n` converted into `dir` (None without ../shared/data).
 fn ft_recording(dir: &Path, n: u32) -> Option<(PathBuf, PathBuf)> {
     let Some(data) = shared_data() else {
-        println!("skipped: ../shared/data is absent");
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
         return None;
     };
     let base = data.join("trajectories/interaction");
@@ -428,7 +431,10 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
 #[test]
 fn topic_roles_are_detected_named_or_refused() {
     let Some(data) = shared_data() else {
-        println!("skipped: ../shared/data is absent");
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
         return;
     };
     let husky = data.join("logs/husky/husky.mcap");
@@ -486,7 +492,10 @@ fn topic_roles_are_detected_named_or_refused() {
 #[test]
 fn the_ego_track_from_pose_or_gps_lies_on_the_lanes() {
     let Some(data) = shared_data() else {
-        println!("skipped: ../shared/data is absent");
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
         return;
     };
     let tmp = tempfile::tempdir().unwrap();

@@ -346,7 +346,10 @@ fn route_between_two_points_of_a_lane() {
 #[test]
 fn every_shared_osm_file_imports() {
     let Some(data) = shared_data() else {
-        println!("skipped: ../shared/data is absent");
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
@@ -385,7 +388,11 @@ fn bundled_campus_imports() {
         "/../data/osm/northwestern_nu.osm.pbf"
     ));
     if !input.is_file() {
-        println!("skipped: {} not bundled", input.display());
+        println!(
+            "skipped: {}: {} not bundled",
+            std::thread::current().name().unwrap_or("-"),
+            input.display()
+        );
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

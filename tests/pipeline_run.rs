@@ -145,7 +145,10 @@ fn runs_every_stage_then_skips_what_did_not_change() {
             );
         }
     } else {
-        println!("skipped: rerun CLI not installed");
+        println!(
+            "skipped: {}: rerun CLI not installed",
+            std::thread::current().name().unwrap_or("-")
+        );
     }
     // Every evaluation episode of every policy, one line each, agreeing with eval.json.
     let eval = read_json(&out.join("agent/eval/eval.json"));

@@ -11,7 +11,10 @@ use common::*;
 #[test]
 fn recording_is_readable_by_rerun_and_shows_the_map() {
     let Some(exe) = rerun_cli() else {
-        println!("skipped: rerun CLI not installed");
+        println!(
+            "skipped: {}: rerun CLI not installed",
+            std::thread::current().name().unwrap_or("-")
+        );
         return;
     };
     let tmp = tempfile::tempdir().unwrap();

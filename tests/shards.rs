@@ -97,7 +97,10 @@ fn augment_shards_merge_into_the_unsharded_folder() {
 /// The FT map and recording 000 converted to MCAP (None without ../shared/data).
 fn ft_recording(dir: &Path) -> Option<(PathBuf, PathBuf)> {
     let Some(data) = shared_data() else {
-        println!("skipped: ../shared/data is absent");
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
         return None;
     };
     let base = data.join("trajectories/interaction");

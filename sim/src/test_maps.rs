@@ -24,7 +24,11 @@ pub fn shared_map(relative: &str) -> Option<Map> {
         .join("../../shared/data")
         .join(relative);
     if !path.exists() {
-        eprintln!("skipped: {} not found", path.display());
+        eprintln!(
+            "skipped: {}: {} not found",
+            std::thread::current().name().unwrap_or("-"),
+            path.display()
+        );
         return None;
     }
     Some(maps::import_file(&path, &Default::default()).expect("shared map imports"))

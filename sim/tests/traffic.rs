@@ -263,7 +263,11 @@ fn traffic_flows_on_the_shared_roundabout_maps() {
     for file in files {
         let path = root.join(file);
         if !path.exists() {
-            eprintln!("skipped: {} not found", path.display());
+            eprintln!(
+                "skipped: {}: {} not found",
+                std::thread::current().name().unwrap_or("-"),
+                path.display()
+            );
             continue;
         }
         let map = maps::import_file(&path, &Default::default()).unwrap();

@@ -27,7 +27,8 @@ pub fn osm_file(name: &str) -> Option<PathBuf> {
         Some(path)
     } else {
         println!(
-            "skipped: {} not found (../shared/data is absent)",
+            "skipped: {}: {} not found (../shared/data is absent)",
+            std::thread::current().name().unwrap_or("-"),
             path.display()
         );
         None
