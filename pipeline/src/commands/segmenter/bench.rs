@@ -20,7 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::train::ArchArgs;
-use super::{Context, open_model, with_threads};
+use super::{Context, check_size, open_model, with_threads};
 use crate::error::CliError;
 
 #[derive(Debug, Args)]
@@ -198,13 +198,14 @@ fn training_steps(config: &PspNetConfig, args: &BenchArgs, device: &Device) -> R
 }
 
 pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
-    if args.batch == 0 || args.size < 8 || args.iterations == 0 {
+    if args.batch == 0 || args.iterations == 0 {
         return Err(CliError::new(
-            "--batch and --iterations must be at least 1 and --size at least 8",
+            "--batch and --iterations must be at least 1",
             "see `pipeline segmenter bench --help`",
         )
         .into());
     }
+    check_size("--size", args.size as u64, "bench", false)?;
     let device = ctx.device()?;
     if args.bf16_convolutions && !models::layers::bf16_convolutions_run_on(&device) {
         return Err(CliError::new(
