@@ -274,7 +274,7 @@ fn bar_style() -> ProgressStyle {
         "{spinner} {prefix} {bar:28.cyan/blue} {human_pos}/{human_len} {msg} [{elapsed} < {eta}, {per_sec:1}]",
     )
     .unwrap_or_else(|_| ProgressStyle::default_bar())
-    .progress_chars("=> ")
+    .progress_chars("█▌░")
 }
 
 /// The counted work in progress, if any.
@@ -402,7 +402,11 @@ impl Progress<'_> {
             }
             Err(_) => String::new(),
         };
-        self.bar.set_message(join(&unit, figures));
+        self.bar.set_message(match (unit.is_empty(), figures.is_empty()) {
+            (_, true) => unit,
+            (true, false) => figures.to_owned(),
+            (false, false) => format!("{unit}, {figures}"),
+        });
     }
 
     /// Reports that `done` of `total` items of `what` are finished (the current step's
