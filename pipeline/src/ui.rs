@@ -402,11 +402,12 @@ impl Progress<'_> {
             }
             Err(_) => String::new(),
         };
-        self.bar.set_message(match (unit.is_empty(), figures.is_empty()) {
-            (_, true) => unit,
-            (true, false) => figures.to_owned(),
-            (false, false) => format!("{unit}, {figures}"),
-        });
+        self.bar
+            .set_message(match (unit.is_empty(), figures.is_empty()) {
+                (_, true) => unit,
+                (true, false) => figures.to_owned(),
+                (false, false) => format!("{unit}, {figures}"),
+            });
     }
 
     /// Reports that `done` of `total` items of `what` are finished (the current step's
