@@ -215,17 +215,23 @@ impl Ui {
     /// stdout is closed (`pipeline ... | head -1`), the command ends quietly with exit code
     /// 0, as other Unix tools do.
     pub fn result(&self, text: &str) {
-        let mut out = std::io::stdout().lock();
-        let written = out
-            .write_all(text.as_bytes())
-            .and_then(|()| {
-                if text.ends_with('\n') {
-                    Ok(())
-                } else {
-                    out.write_all(b"\n")
-                }
-            })
-            .and_then(|()| out.flush());
+        let write = || {
+            let mut out = std::io::stdout().lock();
+            out.write_all(text.as_bytes())
+                .and_then(|()| {
+                    if text.ends_with('\n') {
+                        Ok(())
+                    } else {
+                        out.write_all(b"\n")
+                    }
+                })
+                .and_then(|()| out.flush())
+        };
+        // A bar still drawn on the same terminal is cleared meanwhile.
+        let written = match BARS.get() {
+            Some(bars) => bars.suspend(write),
+            None => write(),
+        };
         match written {
             Ok(()) => {}
             Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
