@@ -277,7 +277,7 @@ fn spinner_style() -> ProgressStyle {
 
 fn bar_style() -> ProgressStyle {
     ProgressStyle::with_template(
-        "{spinner} {prefix} {bar:28.cyan/blue} {human_pos}/{human_len} {msg} [{elapsed} < {eta}, {per_sec:1}]",
+        "{spinner} {prefix} {bar:28.cyan/blue} {human_pos}/{human_len}{msg} [{elapsed} < {eta}, {per_sec:1}]",
     )
     .unwrap_or_else(|_| ProgressStyle::default_bar())
     .progress_chars("█▌░")
@@ -364,7 +364,7 @@ impl Progress<'_> {
         }
         self.bar.set_style(bar_style());
         self.bar.set_prefix(format!("{}: {what}", self.command));
-        self.bar.set_message(unit.to_owned());
+        self.bar.set_message(bar_message(unit, ""));
         self.bar.set_length(total);
         self.bar.set_position(position);
         self.bar.reset_eta();
@@ -408,12 +408,7 @@ impl Progress<'_> {
             }
             Err(_) => String::new(),
         };
-        self.bar
-            .set_message(match (unit.is_empty(), figures.is_empty()) {
-                (_, true) => unit,
-                (true, false) => figures.to_owned(),
-                (false, false) => format!("{unit}, {figures}"),
-            });
+        self.bar.set_message(bar_message(&unit, figures));
     }
 
     /// Reports that `done` of `total` items of `what` are finished (the current step's
@@ -497,6 +492,16 @@ impl Drop for Progress<'_> {
 
 fn tenths(done: u64, total: u64) -> u64 {
     (done.min(total) * 10).checked_div(total).unwrap_or(0)
+}
+
+/// The counted bar's text after the position: ` steps, loss 0.41`, or nothing.
+fn bar_message(unit: &str, figures: &str) -> String {
+    match (unit.is_empty(), figures.is_empty()) {
+        (true, true) => String::new(),
+        (false, true) => format!(" {unit}"),
+        (true, false) => format!(" {figures}"),
+        (false, false) => format!(" {unit}, {figures}"),
+    }
 }
 
 fn join(a: &str, b: &str) -> String {
