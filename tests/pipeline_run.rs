@@ -115,6 +115,18 @@ fn runs_every_stage_then_skips_what_did_not_change() {
         assert!(report.contains(section), "no {section} in\n{report}");
     }
     assert!(report.contains("12 images rendered"), "{report}");
+    // The pictures the stages drew, linked where they are.
+    for picture in [
+        "maps/campus/preview.png",
+        "segmenter/model/curves.png",
+        "segmenter/eval/confusion.png",
+    ] {
+        assert!(out.join(picture).is_file(), "no {picture}");
+        assert!(
+            report.contains(&format!("]({picture})")),
+            "{picture} not in\n{report}"
+        );
+    }
     assert!(out.join("recording.rrd").is_file());
     // One recording, every stage under its own entity path (when rerun's CLI is installed).
     if let Some(exe) = common::rerun_cli() {
@@ -133,15 +145,29 @@ fn runs_every_stage_then_skips_what_did_not_change() {
         for entity in [
             "maps/campus/world/map/lanes",
             "maps/roundabout/world/map/roundabouts",
-            "dataset/dataset/generate/image",
-            "segmenter/",
+            "dataset/generate/image",
+            "dataset/augment/image",
+            "segmenter/train/loss",
             "agent/",
             "logs/episode_000/layers/obstacles",
-            "replay/replay/table",
+            "replay/table",
         ] {
             assert!(
                 text.contains(entity),
                 "`{entity}` not in the run's recording"
+            );
+        }
+        // Each stage's commands keep their own paths: no stage name twice.
+        for repeated in [
+            "dataset/dataset/",
+            "augment/dataset/",
+            "segmenter/segmenter/",
+            "agent/agent/",
+            "replay/replay/",
+        ] {
+            assert!(
+                !text.contains(repeated),
+                "`{repeated}` in the run's recording"
             );
         }
     } else {
@@ -244,5 +270,11 @@ fn a_stage_whose_inputs_never_finished_says_what_to_run() {
     assert!(!result.status.success());
     let err = stderr(&result);
     assert!(err.contains("needs the outputs of stage maps"), "{err}");
-    assert!(err.contains("pipeline run --to maps"), "{err}");
+    // The hint is this run's command line (its config and run folder) with --to.
+    let hint = format!(
+        "hint: run it first: pipeline --config {} run --out {} --to maps",
+        config.display(),
+        dir.path().join("run").display()
+    );
+    assert!(err.contains(&hint), "{err}");
 }

@@ -4,7 +4,8 @@
 //! - sizes that disagree (label vs image vs manifest);
 //! - label values outside the class table (unknown ids), with their pixel counts;
 //! - empty labels (no pixel of any class: all ignore);
-//! - classes present that the card says the source cannot label;
+//! - classes present that the item's source cannot label (the card's `labelable`, or a
+//!   merged item's own, from its input);
 //! - duplicates: items whose image pixels are identical (SHA-256 of the decoded RGB);
 //! - split leakage: one picture (by content) or one source group in two splits.
 
@@ -131,9 +132,10 @@ fn inspect(dataset: &Dataset, item: &Item) -> ItemFacts {
             let e = DatasetError::invalid(&label_path, "label is empty (every pixel is ignore)");
             problems.push(problem(ProblemKind::EmptyLabel, item, e.to_string()));
         }
+        let labelable = item_labelable(dataset, item);
         let unlabelable: Vec<&str> = Class::ALL
             .iter()
-            .filter(|c| hist.count(c.id()) > 0 && !dataset.card.labels(**c))
+            .filter(|c| hist.count(c.id()) > 0 && !labelable.contains(&c.id()))
             .map(|c| c.name())
             .collect();
         if !unlabelable.is_empty() {
@@ -160,12 +162,39 @@ fn inspect(dataset: &Dataset, item: &Item) -> ItemFacts {
     }
 }
 
+/// The class ids an item's source can label: the item's own `params.labelable` when it has
+/// one (a merge keeps each input's there, while the card lists only the classes every input
+/// labels), else the card's.
+pub fn item_labelable(dataset: &Dataset, item: &Item) -> Vec<u8> {
+    item.params
+        .get("labelable")
+        .and_then(serde_json::Value::as_array)
+        .map(|ids| {
+            ids.iter()
+                .filter_map(|v| v.as_u64().and_then(|id| u8::try_from(id).ok()))
+                .collect()
+        })
+        .unwrap_or_else(|| dataset.card.labelable.clone())
+}
+
 /// Checks every item (in parallel) and the dataset as a whole.
 pub fn check_dataset(dataset: &Dataset) -> CheckReport {
+    check_dataset_with_progress(dataset, &|| {})
+}
+
+/// [`check_dataset`], calling `item_done` after each item (from the worker threads).
+pub fn check_dataset_with_progress(
+    dataset: &Dataset,
+    item_done: &(dyn Fn() + Sync),
+) -> CheckReport {
     let facts: Vec<ItemFacts> = dataset
         .items
         .par_iter()
-        .map(|item| inspect(dataset, item))
+        .map(|item| {
+            let facts = inspect(dataset, item);
+            item_done();
+            facts
+        })
         .collect();
     let mut problems: Vec<Problem> = facts.iter().flat_map(|f| f.problems.clone()).collect();
 

@@ -227,12 +227,21 @@ pub fn median_frequency_weights(counts: &[u64], pixels_of_images_with: &[u64]) -
 /// Computes the statistics of a dataset (images in parallel; exact integer sums).
 /// Labels are checked on the way: a wrong size or a value outside the table is an error.
 pub fn dataset_stats(dataset: &Dataset) -> Result<DatasetStats> {
+    dataset_stats_with_progress(dataset, &|| {})
+}
+
+/// [`dataset_stats`], calling `item_done` after each item (from the worker threads).
+pub fn dataset_stats_with_progress(
+    dataset: &Dataset,
+    item_done: &(dyn Fn() + Sync),
+) -> Result<DatasetStats> {
     let partials: Vec<Partial> = dataset
         .items
         .par_iter()
         .map(|item| {
             let image = read_rgb(&dataset.image_path(item))?;
             let label = read_class_label(&dataset.label_path(item), image.width(), image.height())?;
+            item_done();
             Ok(Partial::of(&image, &label))
         })
         .collect::<Result<_>>()?;

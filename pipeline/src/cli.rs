@@ -19,7 +19,10 @@ use crate::ui::Verbosity;
     name = "pipeline",
     version,
     propagate_version = true,
-    max_term_width = 100
+    max_term_width = 100,
+    mut_subcommand("segmenter", |group| with_device(group, DEVICE_COMMANDS)),
+    mut_subcommand("agent", |group| with_device(group, DEVICE_COMMANDS)),
+    mut_subcommand("run", device_arg)
 )]
 pub struct Cli {
     /// TOML file with defaults for commands (e.g. a `[map.import]` table); options given on
@@ -35,7 +38,8 @@ pub struct Cli {
     #[arg(long, global = true, value_name = "N", default_value_t = 0)]
     pub seed: u64,
 
-    /// More detail (timings, per-step figures); -vv for even more.
+    /// More detail (timings, per-step figures); -vv for even more. RUST_LOG (e.g.
+    /// `RUST_LOG=models=debug,burn=info`) overrides -q and -v.
     #[arg(short, long, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
     pub verbose: u8,
 
@@ -48,10 +52,10 @@ pub struct Cli {
     #[arg(long, global = true, value_name = "MODE", default_value = "save", value_parser = parse_rerun)]
     pub rerun: RerunMode,
 
-    /// Where networks train and run (segmenter train / eval / predict / bench, agent
-    /// train): `cpu`, or a GPU through burn's `cuda` or `wgpu` backend in a build with that
-    /// cargo feature, or `libtorch` (PyTorch's kernels on the CPU; docs/gpu.md).
-    #[arg(long, global = true, value_enum, default_value = "cpu")]
+    /// Where networks train and run. Shown in the help of the commands that use it
+    /// ([`DEVICE_COMMANDS`]), which have their own `--device` with this id; elsewhere it is
+    /// accepted but hidden.
+    #[arg(long, global = true, value_enum, default_value = "cpu", hide = true)]
     pub device: DeviceArg,
 
     #[command(subcommand)]
@@ -71,6 +75,45 @@ pub enum DeviceArg {
     Libtorch,
 }
 
+/// The commands that train or run networks on `--device` (`pipeline run` passes it on to its
+/// stages): only their help shows the option.
+pub const DEVICE_COMMANDS: &[(&str, &str)] = &[
+    ("segmenter", "train"),
+    ("segmenter", "eval"),
+    ("segmenter", "predict"),
+    ("segmenter", "bench"),
+    ("segmenter", "recalibrate"),
+    ("agent", "train"),
+];
+
+/// Adds `--device` to the commands of `group` listed in `commands`.
+fn with_device(group: clap::Command, commands: &[(&str, &str)]) -> clap::Command {
+    let name = group.get_name().to_owned();
+    commands
+        .iter()
+        .filter(|(g, _)| *g == name)
+        .fold(group, |group, (_, command)| {
+            group.mut_subcommand(*command, device_arg)
+        })
+}
+
+/// A command's own `--device`: the same id as the hidden global option, so the value given
+/// reaches [`Cli::device`] wherever it is written.
+fn device_arg(command: clap::Command) -> clap::Command {
+    command.arg(
+        clap::Arg::new("device")
+            .long("device")
+            .value_name("DEVICE")
+            .value_parser(clap::builder::EnumValueParser::<DeviceArg>::new())
+            .default_value("cpu")
+            .help(
+                "Where networks train and run: `cpu`, or a GPU through burn's `cuda` or `wgpu` \
+                 backend in a build with that cargo feature, or `libtorch` (PyTorch's kernels on \
+                 the CPU; docs/gpu.md).",
+            ),
+    )
+}
+
 impl From<DeviceArg> for models::DeviceChoice {
     fn from(d: DeviceArg) -> Self {
         match d {
@@ -86,6 +129,8 @@ impl Cli {
     pub fn verbosity(&self) -> Verbosity {
         if self.quiet {
             Verbosity::Quiet
+        } else if self.verbose > 1 {
+            Verbosity::Trace
         } else if self.verbose > 0 {
             Verbosity::Verbose
         } else {

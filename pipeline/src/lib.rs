@@ -9,6 +9,7 @@ pub mod config;
 pub mod error;
 pub mod inputs;
 pub mod output;
+pub mod plots;
 pub mod recording;
 pub mod ui;
 

@@ -15,6 +15,7 @@ fn main() -> ExitCode {
     models::allocator::keep_freed_memory();
     let cli = pipeline::Cli::parse();
     let verbosity = cli.verbosity();
+    pipeline::ui::init_logging(verbosity);
     match pipeline::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {

@@ -16,9 +16,13 @@
 //! | `world/map/markings` | centre lines (yellow), lane dividers and edges (white) |
 //!
 //! Inside `pipeline run` every stage logs into the run's one recording, each under its own
-//! entity prefix (`maps/campus/world/map/...`, `segmenter/...`): commands log through
-//! [`Stream`], which puts its prefix in front of every entity path, and open their recording
-//! with [`crate::commands::Context::open_recording`], which hands out the shared one.
+//! entity path: commands log through [`Stream`] and open their recording with
+//! [`crate::commands::Context::open_recording`], which hands out the shared one. A stage's
+//! stream ([`Stream::stage`]) puts the stage's name before the paths of commands that log
+//! outside a root of their own (`maps/campus/world/map/...`, the logs stage's
+//! `logs/episode_000/...`), and leaves the paths under a command's root
+//! ([`COMMAND_ROOTS`]: `dataset/generate/...`, `segmenter/...`, `agent/...`, `replay/...`)
+//! as the command alone writes them, so no stage's name is repeated (`agent/agent/...`).
 //!
 //! A recording's bytes are not reproducible (rerun stamps chunk ids and times), unlike the
 //! other outputs.
@@ -39,11 +43,17 @@ use crate::error::CliError;
 /// File name of the recording inside an output folder.
 pub const RECORDING_FILE: &str = "recording.rrd";
 
+/// The roots under which commands log (`dataset/...`, `segmenter/...`, `agent/...`,
+/// `logs/...`, `replay/...`): paths under them name their stage already.
+pub const COMMAND_ROOTS: [&str; 5] = ["dataset", "segmenter", "agent", "logs", "replay"];
+
 /// A rerun stream whose entity paths all sit under a prefix (empty: none).
 #[derive(Debug, Clone)]
 pub struct Stream {
     inner: RecordingStream,
     prefix: String,
+    /// Paths under one of [`COMMAND_ROOTS`] are logged as they are, without the prefix.
+    keep_command_roots: bool,
 }
 
 impl Stream {
@@ -52,6 +62,7 @@ impl Stream {
         Stream {
             inner,
             prefix: String::new(),
+            keep_command_roots: false,
         }
     }
 
@@ -60,10 +71,24 @@ impl Stream {
         Stream {
             inner: self.inner.clone(),
             prefix: self.path(prefix),
+            keep_command_roots: self.keep_command_roots,
+        }
+    }
+
+    /// The stream of a `pipeline run` stage: `stage` before every path, except those under a
+    /// command's root ([`COMMAND_ROOTS`]), which name their stage already.
+    pub fn stage(&self, stage: &str) -> Stream {
+        Stream {
+            keep_command_roots: true,
+            ..self.under(stage)
         }
     }
 
     fn path(&self, entity: &str) -> String {
+        let root = entity.split('/').next().unwrap_or_default();
+        if self.keep_command_roots && COMMAND_ROOTS.contains(&root) {
+            return entity.to_owned();
+        }
         match (self.prefix.is_empty(), entity.is_empty()) {
             (true, _) => entity.to_owned(),
             (false, true) => self.prefix.clone(),
@@ -525,6 +550,26 @@ mod tests {
             &bytes[..bytes.len().min(8)]
         );
         Ok(())
+    }
+
+    #[test]
+    fn a_stage_prefixes_only_paths_outside_the_command_roots() {
+        let run = Stream::new(RecordingStream::disabled());
+        let maps = run.stage("maps").under("campus");
+        assert_eq!(maps.path("world/map/lanes"), "maps/campus/world/map/lanes");
+        let agent = run.stage("agent");
+        assert_eq!(agent.path("agent/episode_0/ego"), "agent/episode_0/ego");
+        let augment = run.stage("augment");
+        assert_eq!(
+            augment.path("dataset/augment/image"),
+            "dataset/augment/image"
+        );
+        assert_eq!(augment.path("dataset"), "dataset");
+        let logs = run.stage("logs");
+        assert_eq!(logs.path("episode_000/layers"), "logs/episode_000/layers");
+        // A standalone command's stream keeps every path as it is.
+        assert_eq!(run.path("segmenter/train/loss"), "segmenter/train/loss");
+        assert_eq!(run.under("x").path("agent/a"), "x/agent/a");
     }
 
     #[test]

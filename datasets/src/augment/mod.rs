@@ -506,16 +506,32 @@ pub fn augment_dataset(
     opts: &AugmentOptions,
     out_dir: &Path,
 ) -> Result<AugmentOutcome> {
+    augment_dataset_with_progress(dataset, opts, out_dir, &|| {})
+}
+
+/// The input items [`augment_dataset`] works on: all, or those of `opts.shard`.
+pub fn augment_inputs(dataset: &Dataset, opts: &AugmentOptions) -> usize {
+    let all = dataset.items.len() as u64;
+    let indices = opts.shard.map_or(0..all, |shard| shard.range(all));
+    (indices.end - indices.start) as usize
+}
+
+/// [`augment_dataset`], calling `item_done` after each input item (from the worker threads).
+pub fn augment_dataset_with_progress(
+    dataset: &Dataset,
+    opts: &AugmentOptions,
+    out_dir: &Path,
+    item_done: &(dyn Fn() + Sync),
+) -> Result<AugmentOutcome> {
     opts.config.validate().map_err(DatasetError::Config)?;
     let all = dataset.items.len() as u64;
     let indices = opts.shard.map_or(0..all, |shard| shard.range(all));
     let results: Vec<(String, Result<Vec<Item>>)> = (indices.start as usize..indices.end as usize)
         .into_par_iter()
         .map(|i| {
-            (
-                dataset.items[i].id.clone(),
-                augment_item(dataset, i, opts, out_dir),
-            )
+            let made = augment_item(dataset, i, opts, out_dir);
+            item_done();
+            (dataset.items[i].id.clone(), made)
         })
         .collect();
     let (made, skipped) = apply_policy(results, opts.on_error)?;

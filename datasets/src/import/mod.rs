@@ -108,6 +108,16 @@ pub struct ImportOutcome {
 /// Imports a source into `out_dir` (which must exist): images, labels, manifest, card and
 /// report. With [`OnError::Fail`] the first broken item (in id order) is the error.
 pub fn import(opts: &ImportOptions, out_dir: &Path) -> Result<ImportOutcome> {
+    import_with_progress(opts, out_dir, &|| {})
+}
+
+/// [`import`], calling `item_done` after each pair of the source (from the worker threads;
+/// [`list_pairs`] tells how many there are).
+pub fn import_with_progress(
+    opts: &ImportOptions,
+    out_dir: &Path,
+    item_done: &(dyn Fn() + Sync),
+) -> Result<ImportOutcome> {
     if let Some(config) = &opts.source_config {
         let json = std::fs::read_to_string(config).map_err(|e| DatasetError::io(config, e))?;
         opts.class_map.check_source_config(config, &json)?;
@@ -121,7 +131,11 @@ pub fn import(opts: &ImportOptions, out_dir: &Path) -> Result<ImportOutcome> {
     let lane_map = ClassMap::load("lane_mask")?;
     let results: Vec<(String, Result<Imported>)> = pairs
         .par_iter()
-        .map(|pair| (pair.id.clone(), import_pair(pair, opts, &lane_map, out_dir)))
+        .map(|pair| {
+            let imported = import_pair(pair, opts, &lane_map, out_dir);
+            item_done();
+            (pair.id.clone(), imported)
+        })
         .collect();
     let (imported, skipped) = apply_policy(results, opts.on_error)?;
     if imported.is_empty() {

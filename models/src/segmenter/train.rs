@@ -316,10 +316,25 @@ pub struct EpochPoint {
     pub seconds: f64,
 }
 
+/// The size of a run, told before its first step (for progress bars).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TrainPlan {
+    pub epochs: usize,
+    /// Epochs already done (a resumed run).
+    pub epochs_done: usize,
+    pub batches_per_epoch: usize,
+    pub steps_per_epoch: u64,
+    /// Optimiser steps of the whole run, and those already done.
+    pub total_steps: u64,
+    pub steps_done: u64,
+}
+
 /// What the caller hears about while a run goes (the library itself never prints).
 pub trait TrainObserver {
     /// The curves so far, once, when a run is resumed.
     fn history(&mut self, _points: &[CurvePoint]) {}
+    /// The size of the run, once, before training starts.
+    fn plan(&mut self, _plan: &TrainPlan) {}
     fn step(&mut self, _point: &StepPoint) {}
     /// After validation: the epoch's figures and the preview images.
     fn epoch(&mut self, _point: &EpochPoint, _previews: &[Prediction]) {}
@@ -408,6 +423,14 @@ pub fn train(
     let batches_per_epoch = samples.div_ceil(config.batch_size);
     let steps_per_epoch = batches_per_epoch.div_ceil(config.accumulation) as u64;
     let total_steps = steps_per_epoch * config.epochs as u64;
+    observer.plan(&TrainPlan {
+        epochs: config.epochs,
+        epochs_done: state.epochs_done,
+        batches_per_epoch,
+        steps_per_epoch,
+        total_steps,
+        steps_done: state.step,
+    });
     let class_weights = config
         .class_weights
         .clone()

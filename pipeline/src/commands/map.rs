@@ -23,6 +23,7 @@ use crate::error::{CliError, FileRole, map_error};
 use crate::inputs::load_map;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 use crate::recording;
+use crate::ui::plural;
 
 /// The files `map import` writes.
 pub use crate::inputs::{MAP_BIN, MAP_JSON};
@@ -363,19 +364,13 @@ fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
     let skipped = &summary.skipped;
     if skipped.ways_missing_nodes + skipped.degenerate_ways + skipped.invalid_nodes > 0 {
         ctx.ui.warn(&format!(
-            "skipped {} ways with missing nodes, {} degenerate ways, {} nodes with invalid coordinates (see {SUMMARY_JSON})",
-            skipped.ways_missing_nodes, skipped.degenerate_ways, skipped.invalid_nodes
+            "skipped {} with missing nodes, {}, {} with invalid coordinates (see {SUMMARY_JSON})",
+            plural(skipped.ways_missing_nodes, "way"),
+            plural(skipped.degenerate_ways, "degenerate way"),
+            plural(skipped.invalid_nodes, "node")
         ));
     }
     Ok(())
-}
-
-fn plural(n: usize, what: &str) -> String {
-    if n == 1 {
-        format!("1 {what}")
-    } else {
-        format!("{n} {what}s")
-    }
 }
 
 fn write_outputs(
@@ -488,14 +483,16 @@ pub fn format_summary(file: &Path, form: MapFileForm, s: &MapSummary) -> String 
     );
     let _ = writeln!(
         t,
-        "junctions    {} intersections ({} junctions in all), {} connections",
-        s.junctions, s.junctions_all, s.connections
+        "junctions    {} ({} in all), {}",
+        plural(s.junctions, "intersection"),
+        plural(s.junctions_all, "junction"),
+        plural(s.connections, "connection")
     );
     let _ = writeln!(
         t,
-        "components   {} strongly connected; the largest has {} lanes, {:.2} km",
+        "components   {} strongly connected; the largest has {}, {:.2} km",
         s.components.count,
-        s.components.largest_lane_count,
+        plural(s.components.largest_lane_count, "lane"),
         s.components.largest_lane_length_m / 1000.0
     );
     let stops: Vec<String> = s
@@ -516,12 +513,12 @@ pub fn format_summary(file: &Path, form: MapFileForm, s: &MapSummary) -> String 
     for r in &s.roundabouts {
         let _ = writeln!(
             t,
-            "  #{}: {} entries, {} exits, {} yield lines, {} circulating lanes, radius {:.1} m, {}{}, OSM ways {:?}",
+            "  #{}: {}, {}, {}, {}, radius {:.1} m, {}{}, OSM ways {:?}",
             r.id,
-            r.entries,
-            r.exits,
-            r.yield_lines,
-            r.circulating_lanes,
+            plural(r.entries, "entry"),
+            plural(r.exits, "exit"),
+            plural(r.yield_lines, "yield line"),
+            plural(r.circulating_lanes, "circulating lane"),
             r.radius_m,
             if r.clockwise {
                 "clockwise"
@@ -535,13 +532,16 @@ pub fn format_summary(file: &Path, form: MapFileForm, s: &MapSummary) -> String 
     let k = &s.skipped;
     let _ = writeln!(
         t,
-        "skipped      {} ways with missing nodes, {} degenerate ways, {} invalid nodes, {} restrictions ({} applied), {} unplaced stop nodes",
-        k.ways_missing_nodes,
-        k.degenerate_ways,
-        k.invalid_nodes,
-        k.restrictions_skipped,
-        k.restrictions_applied,
-        k.stop_nodes_unplaced
+        "restrictions {} applied, {} not applicable (unknown ways, via ways)",
+        k.restrictions_applied, k.restrictions_skipped
+    );
+    let _ = writeln!(
+        t,
+        "skipped      {} with missing nodes, {}, {} with invalid coordinates, {} not on a selected road",
+        plural(k.ways_missing_nodes, "way"),
+        plural(k.degenerate_ways, "degenerate way"),
+        plural(k.invalid_nodes, "node"),
+        plural(k.stop_nodes_unplaced, "stop node"),
     );
     t
 }
@@ -634,10 +634,10 @@ fn route(ctx: &Context<'_>, args: &RouteArgs) -> Result<()> {
             let out = ctx.output_path(out);
             write_file_atomic(&out, text.as_bytes())?;
             ctx.ui.info(&format!(
-                "map route: {:.1} m, {:.1} s over {} lanes; wrote {}",
+                "map route: {:.1} m, {:.1} s over {}; wrote {}",
                 route.length_m,
                 route.travel_time_s,
-                route.lanes.len(),
+                plural(route.lanes.len(), "lane"),
                 out.display()
             ));
         }

@@ -4,12 +4,15 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::ValueEnum;
-use datasets::augment::{AugmentConfig, AugmentOptions, Preset, augment_dataset};
+use datasets::augment::{
+    AugmentConfig, AugmentOptions, Preset, augment_dataset_with_progress, augment_inputs,
+};
 
 use super::{DATASET_MARKERS, DatasetOutputArgs, open_dataset, record_samples, report_skipped};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::AtomicDir;
+use crate::ui::plural;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum PresetArg {
@@ -96,11 +99,11 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
     let dest = ctx.output_path(&args.out);
     let dir = AtomicDir::create(&dest, DATASET_MARKERS)?;
     let mut progress = ctx.ui.progress("dataset augment");
-    progress.step(&format!(
-        "{} items x {} copies on {} threads",
-        dataset.items.len(),
-        args.copies,
-        rayon::current_num_threads()
+    progress.note(&format!(
+        "{} x {} on {}",
+        plural(dataset.items.len(), "item"),
+        plural(args.copies as usize, "copy"),
+        plural(rayon::current_num_threads(), "thread")
     ));
     let opts = AugmentOptions {
         name: args.output.dataset_name(&dest),
@@ -111,11 +114,22 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
         on_error: args.output.on_error.into(),
         shard: args.shard,
     };
-    let outcome = augment_dataset(&dataset, &opts, dir.path()).map_err(|e| {
-        CliError::new(
-            e.to_string(),
-            "run `pipeline dataset check` on the input, or pass --on-error skip to leave broken items out",
-        )
+    progress.counted(
+        "augmenting",
+        augment_inputs(&dataset, &opts) as u64,
+        "items",
+    );
+    let outcome = augment_dataset_with_progress(&dataset, &opts, dir.path(), &|| {
+        progress.inc(1);
+    })
+    .map_err(|e| {
+        let hint = match args.output.on_error {
+            super::OnErrorArg::Fail => {
+                "run `pipeline dataset check` on the input, or pass --on-error skip to leave broken items out"
+            }
+            super::OnErrorArg::Skip => "run `pipeline dataset check` on the input to see every broken item",
+        };
+        CliError::new(e.to_string(), hint)
     })?;
     progress.step("logging samples");
     record_samples(
@@ -129,9 +143,9 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
     report_skipped(ctx, &outcome.skipped);
     let out = dir.commit()?;
     ctx.ui.result(&format!(
-        "{} items from {} inputs ({} skipped)",
-        outcome.items.len(),
-        dataset.items.len(),
+        "{} from {} ({} skipped)",
+        plural(outcome.items.len(), "item"),
+        plural(dataset.items.len(), "input"),
         outcome.skipped.len()
     ));
     ctx.ui.info(&format!("wrote {}", out.display()));

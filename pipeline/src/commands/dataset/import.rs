@@ -5,10 +5,11 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::ValueEnum;
 use datasets::import::{
-    ClassMap, ImportOptions, ImportReport, LayoutOptions, SourceFormat, import,
+    ClassMap, ImportOptions, ImportReport, LayoutOptions, SourceFormat, import_with_progress,
+    list_pairs,
 };
 
-use super::{DATASET_MARKERS, DatasetOutputArgs, record_samples, report_skipped};
+use super::{DATASET_MARKERS, DatasetOutputArgs, OnErrorArg, record_samples, report_skipped};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::AtomicDir;
@@ -184,36 +185,65 @@ fn resolve(args: &ImportArgs) -> Result<(ClassMap, SourceFormat, Option<String>,
     Ok((class_map, layout, variant, source_config))
 }
 
+/// What to give when the source is not in the format's layout.
+fn layout_hint(format: FormatArg) -> &'static str {
+    match format {
+        FormatArg::Camvid => {
+            "give SegNet's CamVid folder (train.txt, val.txt, test.txt and the folders they list); docs/datasets.md shows each layout"
+        }
+        FormatArg::Cityscapes => {
+            "give the Cityscapes folder holding leftImg8bit/ and gtFine/; docs/datasets.md shows each layout"
+        }
+        FormatArg::Mapillary => {
+            "give the Mapillary Vistas folder holding <split>/images and <split>/v1.2 (or v2.0)/labels; docs/datasets.md shows each layout"
+        }
+        FormatArg::Carla | FormatArg::LaneMasks | FormatArg::Folders => {
+            "give the folder holding images/ and labels/, or name them with --images and --labels; docs/datasets.md shows each layout"
+        }
+    }
+}
+
 pub fn run(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
     let (class_map, format, variant, source_config) = resolve(args)?;
+    let layout = LayoutOptions {
+        root: args.source.clone(),
+        splits: args.split.clone(),
+        images: args.images.clone(),
+        labels: args.labels.clone(),
+        variant,
+    };
+    // A source that is missing or not in the format's layout fails before anything is
+    // written, with a hint about the layout (--on-error is about broken items only).
+    let pairs = list_pairs(format, &layout)
+        .map_err(|e| CliError::new(e.to_string(), layout_hint(args.format)))?;
     let dest = ctx.output_path(&args.out);
     let dir = AtomicDir::create(&dest, DATASET_MARKERS)?;
     let mut progress = ctx.ui.progress("dataset import");
-    progress.step(&format!(
+    progress.note(&format!(
         "importing {} with class map {}",
         args.source.display(),
         class_map.name
     ));
+    progress.counted("importing", pairs.len() as u64, "items");
     let opts = ImportOptions {
         name: args.output.dataset_name(&dest),
         format,
-        layout: LayoutOptions {
-            root: args.source.clone(),
-            splits: args.split.clone(),
-            images: args.images.clone(),
-            labels: args.labels.clone(),
-            variant,
-        },
+        layout,
         class_map,
         source_config,
         lane_masks: args.lane_masks.clone(),
         on_error: args.output.on_error.into(),
     };
-    let outcome = import(&opts, dir.path()).map_err(|e| {
-        CliError::new(
-            e.to_string(),
-            "fix or remove that file, or pass --on-error skip to leave broken items out (they are counted)",
-        )
+    let outcome = import_with_progress(&opts, dir.path(), &|| progress.inc(1)).map_err(|e| {
+        let hint = match args.output.on_error {
+            OnErrorArg::Fail => {
+                "fix or remove that file, or pass --on-error skip to leave broken items out (they are counted)"
+            }
+            OnErrorArg::Skip => {
+                "check the class map (--class-map) and the source's files: `--on-error fail` stops at the first broken item with its error"
+            }
+        };
+        CliError::new(e.to_string(), hint)
     })?;
     progress.step("logging samples");
     record_samples(
@@ -234,8 +264,8 @@ pub fn run(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
 /// The report as a short table.
 fn summary(r: &ImportReport) -> String {
     let mut text = format!(
-        "{} items ({} skipped), class map {}, {} pixels\nclass          % of all  % labelled\n",
-        r.items,
+        "{} ({} skipped), class map {}, {} pixels\nclass          % of all  % labelled\n",
+        crate::ui::plural(r.items, "item"),
         r.skipped.len(),
         r.class_map,
         r.pixels

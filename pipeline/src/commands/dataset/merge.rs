@@ -8,6 +8,7 @@ use super::{DATASET_MARKERS, open_dataset};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::AtomicDir;
+use crate::ui::plural;
 
 #[derive(Debug, clap::Args)]
 pub struct MergeArgs {
@@ -71,8 +72,11 @@ pub fn run(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
         let (items, _) = datasets::shard::merge_shards(&name, &refs, dir.path())
             .map_err(|e| CliError::new(e.to_string(), "give every shard folder of one run"))?;
         let out = dir.commit()?;
-        ctx.ui
-            .result(&format!("{} items from {} shards", items.len(), refs.len()));
+        ctx.ui.result(&format!(
+            "{} from {}",
+            plural(items.len(), "item"),
+            plural(refs.len(), "shard")
+        ));
         ctx.ui.info(&format!("wrote {}", out.display()));
         return Ok(());
     }
@@ -93,8 +97,10 @@ pub fn run(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
             })?;
     let out = dir.commit()?;
     let counts = card.config.get("counts").cloned().unwrap_or_default();
-    ctx.ui
-        .result(&format!("{} items (per input: {counts})", items.len()));
+    ctx.ui.result(&format!(
+        "{} (per input: {counts})",
+        plural(items.len(), "item")
+    ));
     ctx.ui.info(&format!("wrote {}", out.display()));
     Ok(())
 }

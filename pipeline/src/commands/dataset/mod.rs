@@ -116,8 +116,8 @@ pub fn report_skipped(ctx: &Context<'_>, skipped: &[datasets::error::Skipped]) {
         return;
     }
     ctx.ui.warn(&format!(
-        "skipped {} broken item(s) (--on-error skip)",
-        skipped.len()
+        "skipped {} (--on-error skip)",
+        crate::ui::plural(skipped.len(), "broken item")
     ));
     for s in skipped.iter().take(10) {
         ctx.ui.warn(&format!("  {}: {}", s.id, s.reason));

@@ -11,6 +11,7 @@ use super::open_dataset;
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::write_file_atomic;
+use crate::ui::plural;
 
 /// What `split` writes beside the manifest: its settings and counts.
 pub const SPLIT_JSON: &str = "split.json";
@@ -79,8 +80,11 @@ pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
     write_file_atomic(&args.dataset.join(SPLIT_JSON), json.as_bytes())?;
     write_file_atomic(&manifest, text.as_bytes())?;
     ctx.ui.result(&format!(
-        "train {}, val {}, test {} items ({} groups)",
-        counts.train, counts.val, counts.test, counts.groups
+        "train {}, val {}, test {} ({})",
+        counts.train,
+        counts.val,
+        plural(counts.test, "item"),
+        plural(counts.groups, "group")
     ));
     Ok(())
 }

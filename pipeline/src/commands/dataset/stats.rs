@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use datasets::stats::{DatasetStats, dataset_stats};
+use datasets::stats::{DatasetStats, dataset_stats_with_progress};
 
 use super::open_dataset;
 use crate::commands::Context;
@@ -26,8 +26,8 @@ pub struct StatsArgs {
 pub fn run(ctx: &Context<'_>, args: &StatsArgs) -> Result<()> {
     let dataset = open_dataset(&args.dataset)?;
     let mut progress = ctx.ui.progress("dataset stats");
-    progress.step(&format!("reading {} images", dataset.items.len()));
-    let stats = dataset_stats(&dataset).map_err(|e| {
+    progress.counted("reading", dataset.items.len() as u64, "images");
+    let stats = dataset_stats_with_progress(&dataset, &|| progress.inc(1)).map_err(|e| {
         CliError::new(
             e.to_string(),
             "run `pipeline dataset check` on the dataset to find every broken item",
@@ -51,8 +51,10 @@ fn summary(s: &DatasetStats) -> String {
     let [mr, mg, mb] = s.mean_rgb;
     let [sr, sg, sb] = s.std_rgb;
     let mut text = format!(
-        "{}: {} images, {} pixels\nmean ± std (0-255): R {mr:.1} ± {sr:.1}, G {mg:.1} ± {sg:.1}, B {mb:.1} ± {sb:.1}\n",
-        s.dataset, s.images, s.pixels
+        "{}: {}, {} pixels\nmean ± std (0-255): R {mr:.1} ± {sr:.1}, G {mg:.1} ± {sg:.1}, B {mb:.1} ± {sb:.1}\n",
+        s.dataset,
+        crate::ui::plural(s.images as usize, "image"),
+        s.pixels
     );
     text.push_str("class          % of all  % labelled  images  weight\n");
     for c in &s.classes {

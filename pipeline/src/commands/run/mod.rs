@@ -119,6 +119,7 @@ pub fn run(ctx: &Context<'_>, args: &RunArgs) -> Result<()> {
         })
         .collect();
 
+    let again = invocation(ctx, args);
     let mut manifest = Manifest::load(&run_dir)?;
     let recording = Recording::open(&ctx.cli.rerun, Some(&run_dir))?;
     let mut outcomes: BTreeMap<StageName, StageOutcome> = BTreeMap::new();
@@ -128,7 +129,7 @@ pub fn run(ctx: &Context<'_>, args: &RunArgs) -> Result<()> {
             outcomes.insert(stage, StageOutcome::NotSelected);
             continue;
         }
-        let stream = recording.stream().map(|s| s.under(stage.as_str()));
+        let stream = recording.stream().map(|s| s.stage(stage.as_str()));
         let env = StageEnv {
             ctx,
             run_dir: &run_dir,
@@ -137,7 +138,7 @@ pub fn run(ctx: &Context<'_>, args: &RunArgs) -> Result<()> {
             roundabout: &roundabout,
             recording: stream.as_ref(),
         };
-        let (key, settings, inputs) = stage_key(&env, &manifest, stage)?;
+        let (key, settings, inputs) = stage_key(&env, &manifest, stage, &again)?;
         if !args.force && is_up_to_date(&run_dir, &manifest, stage, &key)? {
             ctx.ui
                 .info(&format!("stage {}: up to date, skipped", stage.as_str()));
@@ -196,11 +197,41 @@ pub fn run(ctx: &Context<'_>, args: &RunArgs) -> Result<()> {
     Ok(())
 }
 
-/// The stage's key: its settings and the content hashes of everything it reads.
+/// `pipeline run` with the options that name this run (config, run folder, profile), for
+/// hints that say what to run: `pipeline --config c.toml run --out DIR`.
+fn invocation(ctx: &Context<'_>, args: &RunArgs) -> String {
+    let quoted = |p: &Path| {
+        let text = p.display().to_string();
+        if text.contains(char::is_whitespace) || text.contains(['\'', '"', '$']) {
+            format!("'{}'", text.replace('\'', r"'\''"))
+        } else {
+            text
+        }
+    };
+    let mut line = String::from("pipeline");
+    if let Some(config) = &ctx.cli.config {
+        line.push_str(&format!(" --config {}", quoted(config)));
+    }
+    if let Some(dir) = &ctx.cli.run_dir {
+        line.push_str(&format!(" --run-dir {}", quoted(dir)));
+    }
+    line.push_str(" run");
+    if args.profile == Profile::Full {
+        line.push_str(" --profile full");
+    }
+    if let Some(out) = &args.out {
+        line.push_str(&format!(" --out {}", quoted(out)));
+    }
+    line
+}
+
+/// The stage's key: its settings and the content hashes of everything it reads. `again` is
+/// the command line of this run, for the hint when an earlier stage is missing.
 fn stage_key(
     env: &StageEnv<'_>,
     manifest: &Manifest,
     stage: StageName,
+    again: &str,
 ) -> Result<(String, serde_json::Value, BTreeMap<String, String>)> {
     let settings = env.settings(stage)?;
     let mut inputs = BTreeMap::new();
@@ -216,7 +247,7 @@ fn stage_key(
                     need.as_str(),
                     env.run_dir.display()
                 ),
-                format!("run it first: pipeline run --to {}", need.as_str()),
+                format!("run it first: {again} --to {}", need.as_str()),
             )
             .into());
         };

@@ -40,6 +40,21 @@ fn items_in(dataset: &Path) -> usize {
         .map_or(0, |items| items.len())
 }
 
+/// Markdown image links (relative to the run folder) to those of `pictures` that exist, on one
+/// line after a blank one (ending the paragraph before); empty when none does.
+fn pictures(run_dir: &Path, pictures: &[(&str, &str)]) -> String {
+    let links: Vec<String> = pictures
+        .iter()
+        .filter(|(_, rel)| run_dir.join(rel).is_file())
+        .map(|(alt, rel)| format!("![{alt}]({rel})"))
+        .collect();
+    if links.is_empty() {
+        String::new()
+    } else {
+        format!("\n\n{}", links.join(" "))
+    }
+}
+
 /// A markdown page another command wrote, without its `# ` title.
 fn page_without_title(path: &Path) -> String {
     std::fs::read_to_string(path)
@@ -109,10 +124,19 @@ pub fn write(
                 number(&s, "/stop_lines/total", 0)
             );
         }
-        let _ = writeln!(
+        let _ = write!(
             md,
-            "\n![campus]({CAMPUS_MAP}/preview.png) ![roundabout]({ROUNDABOUT_MAP}/preview.png)"
+            "{}",
+            pictures(
+                run_dir,
+                &[
+                    ("campus", &format!("{CAMPUS_MAP}/preview.png")),
+                    ("roundabout", &format!("{ROUNDABOUT_MAP}/preview.png")),
+                ]
+            )
+            .replacen('\n', "", 1)
         );
+        md.push('\n');
     }
     if finished(StageName::Dataset) {
         let split = json(&run_dir.join(GENERATED).join("split.json"));
@@ -136,8 +160,7 @@ pub fn write(
         let _ = writeln!(
             md,
             "\n## Segmenter\n\nModel `{SEGMENTER_MODEL}/best`; on {} validation images: mIoU **{}**, pixel accuracy {}.\n\n\
-             | road | lane marking | vehicle | human | other |\n| ---: | ---: | ---: | ---: | ---: |\n| {} | {} | {} | {} | {} |\n\n\
-             ![confusion]({SEGMENTER_EVAL}/confusion.png)",
+             | road | lane marking | vehicle | human | other |\n| ---: | ---: | ---: | ---: | ---: |\n| {} | {} | {} | {} | {} |{}",
             number(&m, "/images", 0),
             number(&m, "/miou", 3),
             number(&m, "/pixel_accuracy", 3),
@@ -146,6 +169,16 @@ pub fn write(
             number(&m, "/per_class_iou/vehicle", 3),
             number(&m, "/per_class_iou/human", 3),
             number(&m, "/per_class_iou/other", 3),
+            pictures(
+                run_dir,
+                &[
+                    ("training curves", &format!("{SEGMENTER_MODEL}/curves.png")),
+                    (
+                        "confusion matrix",
+                        &format!("{SEGMENTER_EVAL}/confusion.png")
+                    ),
+                ]
+            ),
         );
     }
     if finished(StageName::Agent) {
@@ -154,10 +187,17 @@ pub fn write(
         let table = page_without_title(&run_dir.join(AGENT_EVAL).join("eval.md"));
         let _ = writeln!(
             md,
-            "\n## Roundabout-insertion agent\n\nTrained for {} transitions in {} s (`{AGENT_MODEL}`); evaluation (`{AGENT_EVAL}`):\n{}",
+            "\n## Roundabout-insertion agent\n\nTrained for {} transitions in {} s (`{AGENT_MODEL}`); evaluation (`{AGENT_EVAL}`):\n{}{}",
             number(&summary, "/steps", 0),
             number(&summary, "/wall_seconds", 0),
-            table
+            table,
+            pictures(
+                run_dir,
+                &[
+                    ("training curves", &format!("{AGENT_MODEL}/curves.png")),
+                    ("agent and baselines", &format!("{AGENT_EVAL}/eval.png")),
+                ]
+            ),
         );
     }
     if finished(StageName::Logs) {

@@ -150,6 +150,7 @@ impl StageEnv<'_> {
         match self.ctx.ui.verbosity() {
             Verbosity::Quiet => argv.push("-q".into()),
             Verbosity::Verbose => argv.push("-v".into()),
+            Verbosity::Trace => argv.push("-vv".into()),
             Verbosity::Normal => {}
         }
         argv.extend(args.iter().cloned());

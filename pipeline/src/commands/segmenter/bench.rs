@@ -20,8 +20,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::train::ArchArgs;
-use super::{Context, open_model, with_threads};
+use super::{Context, check_size, open_model, with_threads};
 use crate::error::CliError;
+use crate::ui::plural;
 
 #[derive(Debug, Args)]
 pub struct BenchArgs {
@@ -198,13 +199,14 @@ fn training_steps(config: &PspNetConfig, args: &BenchArgs, device: &Device) -> R
 }
 
 pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
-    if args.batch == 0 || args.size < 8 || args.iterations == 0 {
+    if args.batch == 0 || args.iterations == 0 {
         return Err(CliError::new(
-            "--batch and --iterations must be at least 1 and --size at least 8",
+            "--batch and --iterations must be at least 1",
             "see `pipeline segmenter bench --help`",
         )
         .into());
     }
+    check_size("--size", args.size as u64, "bench", false)?;
     let device = ctx.device()?;
     if args.bf16_convolutions && !models::layers::bf16_convolutions_run_on(&device) {
         return Err(CliError::new(
@@ -232,14 +234,19 @@ pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
                 }
             };
             progress.step(&format!(
-                "inference: {} runs at {}x{}, batch {}, {} threads",
-                args.iterations, args.size, args.size, args.batch, args.threads
+                "inference: {} at {}x{}, batch {}, {}",
+                plural(args.iterations, "run"),
+                args.size,
+                args.size,
+                args.batch,
+                plural(args.threads, "thread")
             ));
             let inference_ms = timing(inference(&model, args, &device)?);
             let train_step_ms = if args.train_steps > 0 {
                 progress.step(&format!(
-                    "training: {} steps, batch {}",
-                    args.train_steps, args.train_batch
+                    "training: {}, batch {}",
+                    plural(args.train_steps, "step"),
+                    args.train_batch
                 ));
                 Some(timing(training_steps(&config, args, &device)?))
             } else {
@@ -265,23 +272,27 @@ pub fn run(ctx: &Context<'_>, args: &BenchArgs) -> Result<()> {
         ctx.ui.result(&serde_json::to_string_pretty(&report)?);
     } else {
         let mut text = format!(
-            "parameters {} (batch-norm running statistics included), {:.2} GFLOPs per {}x{} image\ninference batch {}, {} threads: median {:.1} ms (min {:.1}, max {:.1}, {} runs), {:.1} images/s",
+            "parameters {} (batch-norm running statistics included), {:.2} GFLOPs per {}x{} image\ninference batch {}, {}: median {:.1} ms (min {:.1}, max {:.1}, {}), {:.1} images/s",
             report.parameters,
             report.gflops_per_image,
             args.size,
             args.size,
             args.batch,
-            args.threads,
+            plural(args.threads, "thread"),
             report.inference_ms.median,
             report.inference_ms.min,
             report.inference_ms.max,
-            report.inference_ms.runs,
+            plural(report.inference_ms.runs, "run"),
             report.images_per_second
         );
         if let Some(t) = &report.train_step_ms {
             text.push_str(&format!(
-                "\ntraining step batch {}: median {:.1} ms (min {:.1}, max {:.1}, {} runs)",
-                report.train_batch, t.median, t.min, t.max, t.runs
+                "\ntraining step batch {}: median {:.1} ms (min {:.1}, max {:.1}, {})",
+                report.train_batch,
+                t.median,
+                t.min,
+                t.max,
+                plural(t.runs, "run")
             ));
         }
         ctx.ui.result(&text);

@@ -6,7 +6,6 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, ValueEnum};
-use image::{Rgb, RgbImage};
 use models::segmenter::data::{SourceSpec, Split};
 use models::segmenter::eval::{Evaluation, class_names, evaluate};
 use models::segmenter::{ConfusionMatrix, MetricsSummary};
@@ -17,6 +16,8 @@ use super::{
     segmenter_error, with_threads,
 };
 use crate::output::{AtomicDir, Markers, write_file_atomic};
+use crate::plots::confusion_png;
+use crate::ui::plural;
 
 pub const METRICS_JSON: &str = "metrics.json";
 pub const REPORT_MD: &str = "report.md";
@@ -80,6 +81,7 @@ pub struct EvalReport {
 pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let out_path = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out_path, EVAL_MARKERS)?;
+    let size = args.model.size("eval")?;
     let device = ctx.device()?;
     let (model, config) = open_model(&args.model.model, &device)?;
     let split = match args.split {
@@ -88,7 +90,6 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         SplitArg::All => Split::All,
     };
     let sources = open_sources(&args.data, split)?;
-    let size = args.model.size()?;
     if let Some(empty) = sources.iter().find(|s| s.items.is_empty()) {
         return Err(crate::error::CliError::file(
             empty.root(),
@@ -98,10 +99,12 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         .into());
     }
     let mut progress = ctx.ui.progress("segmenter eval");
-    progress.step(&format!(
-        "predicting {} images",
-        sources.iter().map(|s| s.items.len()).sum::<usize>()
-    ));
+    // The images predicted: each dataset's, up to --limit.
+    let images: usize = sources
+        .iter()
+        .map(|s| args.limit.map_or(s.items.len(), |l| l.min(s.items.len())))
+        .sum();
+    progress.counted("predicting", images as u64, "images");
     let evaluation = with_threads(args.threads, || {
         evaluate(
             &model,
@@ -110,7 +113,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             &inference(size, &args.model),
             args.limit,
             &device,
-            |_, _, _| {},
+            |done, _, _| progress.set_position(done as u64),
         )
     })?
     .map_err(|e| segmenter_error(e, "check the dataset"))?;
@@ -125,15 +128,23 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         &dir.path().join(REPORT_MD),
         markdown(&report, &evaluation.overall).as_bytes(),
     )?;
-    let png = datasets::image_io::encode_rgb_png(&confusion_image(&evaluation.overall));
+    let png = confusion_png(
+        &format!(
+            "Confusion matrix: {} of the {} split",
+            plural(report.images, "image"),
+            report.split
+        ),
+        &classes,
+        &evaluation.overall.rows(),
+    )?;
     write_file_atomic(&dir.path().join(CONFUSION_PNG), &png)?;
     let dest = dir.commit()?;
     drop(progress);
     ctx.ui.result(&format!(
-        "mIoU {:.4}, pixel accuracy {:.4} on {} images; {}",
+        "mIoU {:.4}, pixel accuracy {:.4} on {}; {}",
         report.overall.miou,
         report.overall.pixel_accuracy,
-        report.images,
+        plural(report.images, "image"),
         dest.display()
     ));
     Ok(())
@@ -182,9 +193,9 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
     let _ = writeln!(s, "# Segmenter evaluation\n");
     let _ = writeln!(
         s,
-        "Model `{}`, {} images of the `{}` split of {}, short side {} px{}{}.\n",
+        "Model `{}`, {} of the `{}` split of {}, short side {} px{}{}.\n",
         r.model.display(),
-        r.images,
+        plural(r.images, "image"),
         r.split,
         r.datasets
             .iter()
@@ -271,40 +282,8 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
     }
     let _ = writeln!(
         s,
-        "\n{}\n\n`{CONFUSION_PNG}`: the same matrix, darker is a larger share of the row; the class colours along the top and left edges name the columns and rows.",
+        "\n{}\n\n`{CONFUSION_PNG}`: the same matrix as a picture, each cell's share of its row written in it and shaded darker for a larger share; the diagonal (correct pixels) is outlined, each row's pixel count is on the right.",
         r.rule
     );
     s
-}
-
-/// The confusion matrix as an image: one cell per (truth row, prediction column), shaded by
-/// the share of the row, with the class colours as a strip along the top and the left.
-fn confusion_image(m: &ConfusionMatrix) -> RgbImage {
-    const CELL: u32 = 40;
-    const STRIP: u32 = 10;
-    let n = m.classes() as u32;
-    let side = STRIP + n * CELL;
-    let colour = |c: u32| datasets::classes::label_color(c as u8);
-    let rows = m.rows();
-    RgbImage::from_fn(side, side, |x, y| match (x < STRIP, y < STRIP) {
-        (true, true) => Rgb([255, 255, 255]),
-        (true, false) => Rgb(colour((y - STRIP) / CELL)),
-        (false, true) => Rgb(colour((x - STRIP) / CELL)),
-        (false, false) => {
-            let (t, p) = (((y - STRIP) / CELL) as usize, ((x - STRIP) / CELL) as usize);
-            let total: u64 = rows[t].iter().sum();
-            let share = if total == 0 {
-                0.0
-            } else {
-                rows[t][p] as f64 / total as f64
-            };
-            let border = (x - STRIP).is_multiple_of(CELL) || (y - STRIP).is_multiple_of(CELL);
-            if border {
-                Rgb([200, 200, 200])
-            } else {
-                let v = (255.0 * (1.0 - share)).round() as u8;
-                Rgb([v, v, 255])
-            }
-        }
-    })
 }

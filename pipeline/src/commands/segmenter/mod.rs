@@ -83,11 +83,35 @@ pub struct ModelArgs {
     pub flip: bool,
 }
 
+/// The short sides the network takes, in px (as `--extra-sizes`): below, its pyramid
+/// pooling has nothing left to pool; above, one image fills gigabytes.
+pub const SIZES: std::ops::RangeInclusive<u32> = 16..=4096;
+
+/// Refuses a `--size` (or `--crop`) outside [`SIZES`], the same way in every segmenter
+/// command. `own_size` allows 0, the images' own size (`eval` and `predict`).
+pub fn check_size(option: &str, size: u64, command: &str, own_size: bool) -> Result<()> {
+    if SIZES.contains(&u32::try_from(size).unwrap_or(u32::MAX)) || (own_size && size == 0) {
+        return Ok(());
+    }
+    let range = format!("{} to {} px", SIZES.start(), SIZES.end());
+    let hint = if own_size {
+        format!("give {option} from {range}, or 0 for the images' own size")
+    } else {
+        format!("give {option} from {range} (see `pipeline segmenter {command} --help`)")
+    };
+    Err(CliError::new(
+        format!("{option} {size}: the network takes short sides of {range}"),
+        hint,
+    )
+    .into())
+}
+
 impl ModelArgs {
     /// `--size`, else the model's training size, else the training default (256); 0 means
-    /// the images' own size.
-    pub fn size(&self) -> Result<u32> {
+    /// the images' own size. A size the network cannot take is refused.
+    pub fn size(&self, command: &str) -> Result<u32> {
         if let Some(size) = self.size {
+            check_size("--size", size.into(), command, true)?;
             return Ok(size);
         }
         let trained = trained_short_side(&model_dir(&self.model)).map_err(|e| {

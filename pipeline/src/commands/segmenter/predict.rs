@@ -9,8 +9,10 @@ use datasets::image_io::{encode_label_png, encode_rgb_png, overlay_label, read_r
 use models::segmenter::infer::predict_label;
 
 use super::{Context, ModelArgs, inference, open_model, with_threads};
+use crate::commands::dataset::OnErrorArg;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
+use crate::ui::plural;
 
 pub const LABELS_DIR: &str = "labels";
 pub const OVERLAYS_DIR: &str = "overlays";
@@ -31,6 +33,11 @@ pub struct PredictArgs {
     /// atomically).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+
+    /// What to do with an image that cannot be read: stop with its error (nothing is
+    /// written), or leave it out, counted and named in warnings (as `dataset import`).
+    #[arg(long, value_enum, default_value = "fail")]
+    pub on_error: OnErrorArg,
 
     /// Threads [default: all cores].
     #[arg(long)]
@@ -73,28 +80,34 @@ fn inputs(input: &Path) -> Result<Vec<PathBuf>> {
 pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
     let out_path = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out_path, PREDICT_MARKERS)?;
+    let size = args.model.size("predict")?;
     let files = inputs(&args.input)?;
     let device = ctx.device()?;
     let (model, config) = open_model(&args.model.model, &device)?;
-    let inference = inference(args.model.size()?, &args.model);
+    let inference = inference(size, &args.model);
     let dir = AtomicDir::create(&out_path, PREDICT_MARKERS)?;
     for sub in [LABELS_DIR, OVERLAYS_DIR] {
         std::fs::create_dir_all(dir.path().join(sub))?;
     }
     let mut progress = ctx.ui.progress("segmenter predict");
-    progress.step(&format!("labelling {} images", files.len()));
-    let mut skipped = 0;
+    progress.counted("labelling", files.len() as u64, "images");
+    let mut skipped = Vec::new();
     let mut names = std::collections::BTreeSet::new();
-    for file in &files {
+    for (done, file) in files.iter().enumerate() {
+        progress.set_position(done as u64);
         let image = match read_rgb(file) {
             Ok(image) => image,
-            Err(e) if files.len() > 1 => {
-                progress.note(&format!("skipped: {e}"));
-                skipped += 1;
+            Err(e) if args.on_error == OnErrorArg::Skip => {
+                skipped.push(e.to_string());
                 continue;
             }
             Err(e) => {
-                return Err(CliError::file(file, e.to_string(), "give a PNG or JPEG image").into());
+                let hint = if files.len() > 1 {
+                    "give a PNG or JPEG image, or pass --on-error skip to label the others (the skipped ones are counted)"
+                } else {
+                    "give a PNG or JPEG image"
+                };
+                return Err(CliError::new(e.to_string(), hint).into());
             }
         };
         let stem = file
@@ -123,7 +136,8 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
             &encode_rgb_png(&overlay),
         )?;
     }
-    if skipped == files.len() {
+    progress.set_position(files.len() as u64);
+    if skipped.len() == files.len() {
         return Err(CliError::file(
             &args.input,
             "none of its images could be read",
@@ -133,13 +147,22 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
     }
     let dest = dir.commit()?;
     drop(progress);
+    if !skipped.is_empty() {
+        ctx.ui.warn(&format!(
+            "skipped {} (--on-error skip)",
+            plural(skipped.len(), "unreadable image")
+        ));
+        for reason in skipped.iter().take(10) {
+            ctx.ui.warn(&format!("  {reason}"));
+        }
+    }
     ctx.ui.result(&format!(
-        "{} images labelled{} in {}",
-        files.len() - skipped,
-        if skipped > 0 {
-            format!(", {skipped} unreadable skipped")
-        } else {
+        "{} labelled{} in {}",
+        plural(files.len() - skipped.len(), "image"),
+        if skipped.is_empty() {
             String::new()
+        } else {
+            format!(", {} unreadable skipped", skipped.len())
         },
         dest.display()
     ));

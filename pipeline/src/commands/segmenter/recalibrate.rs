@@ -82,8 +82,9 @@ pub fn run(ctx: &Context<'_>, args: &RecalibrateArgs) -> Result<()> {
     let device = ctx.device()?;
     let mut progress = ctx.ui.progress("segmenter recalibrate");
     progress.step(&format!(
-        "averaging the batch statistics of {} batches of {}",
-        args.batches, config.batch_size
+        "averaging the batch statistics of {} of {}",
+        crate::ui::plural(args.batches as usize, "batch"),
+        config.batch_size
     ));
     let (model, crops) = with_threads(args.threads, || {
         let training = device.clone().autodiff();
@@ -116,7 +117,8 @@ pub fn run(ctx: &Context<'_>, args: &RecalibrateArgs) -> Result<()> {
     let dest = dir.commit()?;
     drop(progress);
     ctx.ui.result(&format!(
-        "batch norms recalibrated on {crops} crops; model in {}",
+        "batch norms recalibrated on {}; model in {}",
+        crate::ui::plural(crops, "crop"),
         dest.display()
     ));
     Ok(())

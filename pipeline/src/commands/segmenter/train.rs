@@ -11,9 +11,11 @@ use models::segmenter::train::{StopReason, TRAIN_CONFIG_FILE, TrainData, Trainin
 
 use super::record::TrainRecorder;
 use super::{
-    Context, open_sources, parse_source, read_training_config, segmenter_error, with_threads,
+    Context, check_size, open_sources, parse_source, read_training_config, segmenter_error,
+    with_threads,
 };
 use crate::error::CliError;
+use crate::ui::plural;
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -254,6 +256,8 @@ impl TrainArgs {
         if self.max_minutes.is_some() {
             c.max_minutes = self.max_minutes;
         }
+        check_size("--size", c.size.into(), "train", false)?;
+        check_size("--crop", c.crop.into(), "train", false)?;
         c.validate()
             .map_err(|e| segmenter_error(e, "see `pipeline segmenter train --help`"))?;
         Ok(c)
@@ -315,7 +319,7 @@ pub fn run(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     // A resumed session writes a new recording and logs the curves so far into it first.
     let recording = ctx.open_recording(Some(&out))?;
     let mut progress = ctx.ui.progress("segmenter train");
-    let mut recorder = TrainRecorder::new(&recording, &mut progress, config.model.classes)?;
+    let mut recorder = TrainRecorder::new(&recording, &mut progress, config.model.classes, &out)?;
     let device = ctx.device()?;
     let summary = with_threads(args.threads, || {
         train(&out, &config, &data, args.resume, &device, &mut recorder)
@@ -332,9 +336,9 @@ pub fn run(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         None => "stopped",
     };
     ctx.ui.result(&format!(
-        "{} epochs, {} steps, {:.0} s ({why}); best validation mIoU {:.4} at epoch {}; model in {}",
-        state.epochs_done,
-        state.step,
+        "{}, {}, {:.0} s ({why}); best validation mIoU {:.4} at epoch {}; model in {}",
+        plural(state.epochs_done, "epoch"),
+        plural(state.step as usize, "step"),
         state.seconds,
         state.best_miou,
         state.best_epoch,
