@@ -90,7 +90,7 @@ mod tests {
 
     #[test]
     fn a_missing_map_names_the_path() {
-        let err = load_or_import_map(Path::new("no/such/map.json")).unwrap_err();
+        let err = load_or_import_map(Path::new("no/such/map.json")).expect_err("no such file");
         assert!(err.to_string().contains("no/such/map.json"), "{err}");
     }
 }
