@@ -2,7 +2,7 @@
 //! curves, the checkpoints written into `DIR.partial`, and with `[agent.validation]` the
 //! validation of every checkpoint (the best kept beside them, see [`crate::agent_folder`]).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
@@ -40,7 +40,42 @@ pub struct TrainProgress<'a, 'b> {
     pub error: Option<anyhow::Error>,
 }
 
-impl TrainProgress<'_, '_> {
+/// The span of a training run: transitions from `first_step` (a resumed run's checkpoint)
+/// to `total_steps`; `verbose` reports every 10 s rather than every minute.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RunSpan {
+    pub first_step: u64,
+    pub total_steps: u64,
+    pub verbose: bool,
+}
+
+impl<'a, 'b> TrainProgress<'a, 'b> {
+    /// The observer of a run of `task` checkpointing into `partial`, validating its
+    /// checkpoints with `validation`; its clock starts now.
+    pub fn new(
+        progress: &'a mut Progress<'b>,
+        recording: Option<&'a Stream>,
+        partial: &Path,
+        task: &'a TaskRecord,
+        span: RunSpan,
+        validation: Option<Validation>,
+    ) -> Self {
+        TrainProgress {
+            progress,
+            recording,
+            partial: partial.to_path_buf(),
+            task,
+            total_steps: span.total_steps,
+            first_step: span.first_step,
+            started: Instant::now(),
+            last_report: Instant::now(),
+            report_every: Duration::from_secs(if span.verbose { 10 } else { 60 }),
+            recent: OutcomeRates::new(),
+            validation,
+            error: None,
+        }
+    }
+
     fn keep(&mut self, result: Result<()>) {
         if let Err(e) = result
             && self.error.is_none()

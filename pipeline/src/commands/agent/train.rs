@@ -9,12 +9,13 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use models::ModelError;
+use models::dqn::DqnConfig;
 use models::policy::QPolicy;
-use models::training::{OutcomeRates, TrainSummary};
+use models::training::TrainSummary;
 use models::validation::{VALIDATION_FILE, validation_seed};
 use sim::tasks::{Task, TaskVisitor};
 use sim::world::TrafficLevel;
@@ -24,7 +25,7 @@ use crate::agent_folder::{
     AGENT_MARKERS, SUMMARY_FILE, TASK_FILE, TaskRecord, find_checkpoint, models_error, partial_dir,
     start_validation,
 };
-use crate::agent_progress::TrainProgress;
+use crate::agent_progress::{RunSpan, TrainProgress};
 use crate::agent_recording::{log_history, record_episodes};
 use crate::commands::Context;
 use crate::error::CliError;
@@ -100,6 +101,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     }
     dqn.validate().map_err(|e| config_error(ctx, e))?;
     let first_step = resume.as_ref().map_or(0, |(c, _, _)| c.state.steps);
+    check_warmup(&dqn, first_step)?;
     if !validation_config.is_off() && dqn.checkpoint_every == 0 {
         return Err(CliError::new(
             "[agent.validation] validates every checkpoint, but checkpoint_every of [agent.dqn] is 0",
@@ -170,24 +172,13 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         dqn.envs,
         traffic.name()
     ));
-    let mut observer = TrainProgress {
-        progress: &mut progress,
-        recording: recording.stream(),
-        partial: partial.clone(),
-        task: &task,
-        total_steps: dqn.total_steps,
+    let span = RunSpan {
         first_step,
-        started,
-        last_report: Instant::now(),
-        report_every: if ctx.ui.verbosity() >= crate::ui::Verbosity::Verbose {
-            Duration::from_secs(10)
-        } else {
-            Duration::from_secs(60)
-        },
-        recent: OutcomeRates::new(),
-        validation,
-        error: None,
+        total_steps: dqn.total_steps,
+        verbose: ctx.ui.verbosity() >= crate::ui::Verbosity::Verbose,
     };
+    let rec = recording.stream();
+    let mut observer = TrainProgress::new(&mut progress, rec, &partial, &task, span, validation);
     let result = models::dqn::train(
         &dqn,
         seed,
@@ -204,6 +195,15 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let elapsed = started.elapsed().as_secs_f64();
     let mut summary = TrainSummary::new(&last.state, first_step, elapsed);
     let checkpoint = match validation {
+        Some(_) if last.state.updates == 0 => {
+            // Every checkpoint is the untrained network: there is nothing to choose.
+            ctx.ui.warn(&format!(
+                "no gradient step in {} transitions (warmup_steps = {} of [agent.dqn]): the agent \
+                 is the untrained network, not chosen by validation",
+                last.state.steps, dqn.warmup_steps
+            ));
+            last
+        }
         Some(validation) => {
             progress.step("validating the final network");
             let (chosen, history) = validation.choose(last);
@@ -250,6 +250,33 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     drop(progress);
     ctx.ui.result(&summary.describe(&dest));
     Ok(())
+}
+
+/// Refuses a run whose transitions all go to the warm-up: it would take no gradient step
+/// (and a "best" validation would choose among untrained networks).
+fn check_warmup(dqn: &DqnConfig, first_step: u64) -> Result<()> {
+    let to_train = dqn.total_steps.saturating_sub(first_step);
+    if to_train == 0 || to_train > dqn.warmup_steps {
+        return Ok(());
+    }
+    let span = if first_step > 0 {
+        format!(" (from step {first_step} to {})", dqn.total_steps)
+    } else {
+        String::new()
+    };
+    Err(CliError::new(
+        format!(
+            "the run's {to_train} transitions{span} are all warm-up (warmup_steps = {} of \
+             [agent.dqn]): no gradient step would be taken",
+            dqn.warmup_steps
+        ),
+        format!(
+            "train for more than {} transitions (--steps, or total_steps of [agent.dqn]), or \
+             lower warmup_steps of [agent.dqn]",
+            first_step + dqn.warmup_steps
+        ),
+    )
+    .into())
 }
 
 fn config_error(ctx: &Context<'_>, e: ModelError) -> anyhow::Error {
