@@ -29,15 +29,17 @@ use serde::{Deserialize, Serialize};
 
 use super::insertion_eval::{self, Condition};
 pub use super::motion_inputs::{MOTION_SCALARS, MotionHistory};
-use super::roundabouts::{EgoView, RoundaboutSet, ego_scene};
-use super::{ConditionChoice, Episode, LayerFrame, PolicyFactory, Task, TaskId, TaskSummary};
+use super::roundabouts::{EgoView, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
+use super::{
+    ConditionChoice, Episode, LayerFrame, PolicyFactory, Task, TaskId, TaskSummary, check_positive,
+};
 use crate::baselines::{Baseline, InsertionPolicy};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
 use crate::eval::{EvalHeader, EvalReport, Evaluation};
 use crate::observer::SceneObserver;
 use crate::render::{BevConfig, BevRenderer};
-use crate::roundabout::{LayoutConfig, RoundaboutLayout};
+use crate::roundabout::LayoutConfig;
 use crate::scene::Scene;
 use crate::world::{Driver, EgoConfig, TrafficConfig, TrafficLevel, World};
 
@@ -316,46 +318,34 @@ pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
 
 /// What is prepared once per map and shared by every environment on it (read-only):
 /// the routes of each usable roundabout and its static bird's-eye raster.
-#[derive(Debug)]
-pub struct InsertionSetup {
-    config: InsertionConfig,
-    roundabouts: RoundaboutSet,
-}
+pub type InsertionSetup = RoundaboutSetup<InsertionConfig>;
 
 impl InsertionSetup {
     /// Prepares every roundabout of `map` that has a route from an entry through the ring
     /// to an exit. Fails when there is none, or the configuration is invalid.
     pub fn new(map: Arc<Map>, config: InsertionConfig) -> Result<Arc<Self>, SimError> {
         validate(&config)?;
-        let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
-        Ok(Arc::new(InsertionSetup {
-            config,
-            roundabouts,
-        }))
+        Self::prepare(map, config, None)
+    }
+}
+
+impl RoundaboutTaskConfig for InsertionConfig {
+    fn layout(&self) -> &LayoutConfig {
+        &self.layout
     }
 
-    pub fn map(&self) -> &Arc<Map> {
-        self.roundabouts.map()
+    fn bev(&self) -> &BevConfig {
+        &self.observation
     }
 
-    pub fn config(&self) -> &InsertionConfig {
-        &self.config
-    }
-
-    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
-        self.roundabouts.layouts()
-    }
-
-    pub fn observation_spec(&self) -> ObservationSpec {
-        self.config
-            .observation
-            .observation_spec(self.config.scalar_count())
+    fn observation_spec(&self) -> ObservationSpec {
+        self.observation.observation_spec(self.scalar_count())
     }
 }
 
 fn validate(c: &InsertionConfig) -> Result<(), SimError> {
     c.observation.validate()?;
-    let positive = [
+    check_positive(&[
         ("traffic.step_s", c.traffic.step_s),
         ("time_limit_s", c.time_limit_s),
         ("speed_scale_mps", c.speed_scale_mps),
@@ -363,12 +353,7 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
         ("comfort_decel_mps2", c.comfort_decel_mps2),
         ("reward.danger_sigma_power", c.reward.danger_sigma_power),
         ("reward.short_entry_s", c.reward.short_entry_s),
-    ];
-    for (name, v) in positive {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(SimError::Config(format!("{name} = {v} must be positive")));
-        }
-    }
+    ])?;
     if c.action_repeat == 0 {
         return Err(SimError::Config(
             "action_repeat = 0: at least one world step per decision".to_owned(),

@@ -76,7 +76,7 @@ pub use ring_driving::{
     PursuitRule, RingDriving, RingDrivingConfig, RingDrivingSetup, RingDrivingSummary,
     RingRewardConfig, SteerAction,
 };
-pub use roundabouts::{EgoView, RoundaboutSet, ego_scene};
+pub use roundabouts::{EgoView, RoundaboutSet, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
 
 /// A driving task: an [`Env`] with everything training and evaluating an agent on it needs.
 pub trait Task: Env + Sized + 'static {
@@ -288,6 +288,14 @@ impl<E> TaskPolicy<E> for ConstantAction {
     fn act(&mut self, envs: &[&E], _: &[&Observation], actions: &mut Vec<usize>) {
         actions.clear();
         actions.resize(envs.len(), self.0);
+    }
+}
+
+/// Fails with the first of `values` (settings by name) that is not a positive number.
+pub(crate) fn check_positive(values: &[(&str, f64)]) -> Result<(), SimError> {
+    match values.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        Some((name, v)) => Err(SimError::Config(format!("{name} = {v} must be positive"))),
+        None => Ok(()),
     }
 }
 

@@ -59,7 +59,7 @@ use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
 use crate::synthetic::straight_road;
 use crate::tasks::{
     ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
-    baselines_with_rule,
+    baselines_with_rule, check_positive,
 };
 use crate::world::TrafficLevel;
 
@@ -242,7 +242,7 @@ impl Default for ObstacleConfig {
 
 impl ObstacleConfig {
     fn validate(&self) -> Result<(), SimError> {
-        let positive = [
+        check_positive(&[
             ("lane_width_m", self.lane_width_m),
             ("destination_m", self.destination_m),
             ("start_speed_kmh", self.start_speed_kmh),
@@ -264,12 +264,7 @@ impl ObstacleConfig {
                 self.lidar.window_longitudinal_m,
             ),
             ("normalised.scale", self.normalised.scale),
-        ];
-        for (name, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(SimError::Config(format!("{name} = {v} must be positive")));
-            }
-        }
+        ])?;
         let non_negative = [
             ("stop_speed_mps", self.stop_speed_mps),
             ("static_lateral_m", self.static_lateral_m),

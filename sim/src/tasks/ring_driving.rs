@@ -42,10 +42,10 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::roundabouts::{EgoView, RoundaboutSet, ego_scene};
+use super::roundabouts::{EgoView, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
 use super::{
     ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
-    baselines_with_rule,
+    baselines_with_rule, check_positive,
 };
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
@@ -53,7 +53,7 @@ use crate::kinematics::Bicycle;
 use crate::observer::{CameraViewConfig, SceneObserver, View, checked_observer};
 use crate::path::wrap_angle;
 use crate::render::{BevConfig, BevRenderer};
-use crate::roundabout::{LayoutConfig, RingRoute, RoundaboutLayout};
+use crate::roundabout::{LayoutConfig, RingRoute};
 use crate::scene::Scene;
 use crate::world::{EgoCommand, EgoConfig, TrafficConfig, TrafficLevel, World};
 
@@ -208,7 +208,7 @@ fn validate(c: &RingDrivingConfig) -> Result<(), SimError> {
         }
         View::CameraSegmentation => c.camera_view()?.validate()?,
     }
-    let positive = [
+    check_positive(&[
         ("traffic.step_s", c.traffic.step_s),
         ("episode_s", c.episode_s),
         ("steer_rad", c.steer_rad),
@@ -217,12 +217,7 @@ fn validate(c: &RingDrivingConfig) -> Result<(), SimError> {
         ("speed_scale_mps", c.speed_scale_mps),
         ("ego.max_steer_rad", c.ego.max_steer_rad),
         ("ego.wheelbase_m", c.ego.wheelbase_m),
-    ];
-    for (name, v) in positive {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(SimError::Config(format!("{name} = {v} must be positive")));
-        }
-    }
+    ])?;
     if !(0.0..=1.0).contains(&c.ring_start_probability) {
         return Err(SimError::Config(format!(
             "ring_start_probability = {} must lie in [0, 1]",
@@ -272,13 +267,7 @@ impl RingDrivingConfig {
 }
 
 /// What is prepared once per map and shared by every environment on it (read-only).
-#[derive(Debug)]
-pub struct RingDrivingSetup {
-    config: RingDrivingConfig,
-    roundabouts: RoundaboutSet,
-    /// Draws the layers of a camera view.
-    observer: Option<Arc<dyn SceneObserver>>,
-}
+pub type RingDrivingSetup = RoundaboutSetup<RingDrivingConfig>;
 
 impl RingDrivingSetup {
     /// Prepares every roundabout of `map` that has a route through its ring. Fails when
@@ -302,28 +291,21 @@ impl RingDrivingSetup {
             View::Bev | View::Scalars => None,
         };
         let observer = checked_observer("agent.roundabout_driving", config.view, camera, observer)?;
-        let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
-        Ok(Arc::new(RingDrivingSetup {
-            config,
-            roundabouts,
-            observer,
-        }))
+        Self::prepare(map, config, observer)
+    }
+}
+
+impl RoundaboutTaskConfig for RingDrivingConfig {
+    fn layout(&self) -> &LayoutConfig {
+        &self.layout
     }
 
-    pub fn map(&self) -> &Arc<Map> {
-        self.roundabouts.map()
+    fn bev(&self) -> &BevConfig {
+        &self.observation
     }
 
-    pub fn config(&self) -> &RingDrivingConfig {
-        &self.config
-    }
-
-    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
-        self.roundabouts.layouts()
-    }
-
-    pub fn observation_spec(&self) -> ObservationSpec {
-        self.config.observation_spec()
+    fn observation_spec(&self) -> ObservationSpec {
+        RingDrivingConfig::observation_spec(self)
     }
 }
 
