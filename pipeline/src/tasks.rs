@@ -8,7 +8,7 @@ use std::sync::Arc;
 use anyhow::Result;
 use maps::Map;
 use sim::SimError;
-use sim::observer::{CameraViewConfig, SceneObserver, View};
+use sim::observer::{CameraViewConfig, SceneObserver};
 use sim::tasks::Task;
 
 use crate::commands::agent::AgentConfig;
@@ -36,10 +36,9 @@ pub fn setup<T: Task>(map: Option<&Path>, config: &T::Config) -> Result<Arc<T::S
     } else {
         None
     };
-    let (view, camera) = T::view(config);
-    let observer = match &loaded {
-        Some(map) => camera_observer(map, view, camera)?,
-        None => None,
+    let observer = match (&loaded, T::camera_view(config)) {
+        (Some(map), Some(camera)) => Some(camera_observer(map, camera)?),
+        _ => None,
     };
     let map_path = map.filter(|_| info.needs_map);
     T::setup(loaded, config.clone(), observer).map_err(|e| setup_error::<T>(e, map_path))
@@ -68,17 +67,10 @@ pub fn required_map(map: Option<&Path>, task: &str) -> Result<Map> {
     load_or_import_map(path)
 }
 
-/// The observer of `view = "camera-segmentation"` on `map` (None for the other views): the
-/// camera renderer and the segmenter of the `camera` table. A missing or invalid segmenter
-/// folder is one error naming the file.
-pub fn camera_observer(
-    map: &Map,
-    view: View,
-    camera: Option<&CameraViewConfig>,
-) -> Result<Option<Arc<dyn SceneObserver>>> {
-    let (View::CameraSegmentation, Some(camera)) = (view, camera) else {
-        return Ok(None);
-    };
+/// The observer of `view = "camera-segmentation"` on `map`: the camera renderer and the
+/// segmenter of the `camera` table. A missing or invalid segmenter folder is one error
+/// naming the file.
+pub fn camera_observer(map: &Map, camera: &CameraViewConfig) -> Result<Arc<dyn SceneObserver>> {
     let observer = models::camera_view::load(map, camera).map_err(|e| {
         let message = match e.path() {
             Some(_) => format!("the camera view's segmenter: {e}"),
@@ -93,6 +85,5 @@ pub fn camera_observer(
              `pipeline segmenter train` (model.json + model.bpk)",
         )
     })?;
-    let observer: Arc<dyn SceneObserver> = Arc::new(observer);
-    Ok(Some(observer))
+    Ok(Arc::new(observer))
 }

@@ -61,7 +61,7 @@ use maps::{Map, Point};
 use crate::env::{Env, Observation, Outcome};
 use crate::error::SimError;
 use crate::eval::{EvalHeader, EvalReport, Evaluation};
-use crate::observer::{CameraViewConfig, SceneObserver, View};
+use crate::observer::{CameraViewConfig, SceneObserver};
 use crate::scene::Scene;
 use crate::world::TrafficLevel;
 
@@ -93,7 +93,7 @@ pub trait Task: Env + Sized + 'static {
     const ID: TaskId;
 
     /// Prepares the task on `map` (None for a task that makes its own road), with the
-    /// observer that draws a camera view's layers (see [`Task::view`]).
+    /// observer that draws a camera view's layers (see [`Task::camera_view`]).
     fn setup(
         map: Option<Arc<Map>>,
         config: Self::Config,
@@ -103,10 +103,10 @@ pub trait Task: Env + Sized + 'static {
     /// The map the task drives on.
     fn map(setup: &Self::Setup) -> &Map;
 
-    /// Which layers `config` asks for, and its camera table (what the observer of
-    /// `view = "camera-segmentation"` is built from).
-    fn view(_config: &Self::Config) -> (View, Option<&CameraViewConfig>) {
-        (View::Bev, None)
+    /// The camera table of `config` when it asks for `view = "camera-segmentation"`: what
+    /// the observer given to [`Task::setup`] is built from. None by default (no camera view).
+    fn camera_view(_config: &Self::Config) -> Option<&CameraViewConfig> {
+        None
     }
 
     /// The camera table of `config`, to change in place (e.g. its segmenter folder).

@@ -668,8 +668,11 @@ impl Task for RingDriving {
         setup.map()
     }
 
-    fn view(config: &RingDrivingConfig) -> (View, Option<&CameraViewConfig>) {
-        (config.view, config.camera.as_ref())
+    fn camera_view(config: &RingDrivingConfig) -> Option<&CameraViewConfig> {
+        match config.view {
+            View::CameraSegmentation => config.camera.as_ref(),
+            View::Bev | View::Scalars => None,
+        }
     }
 
     fn camera_mut(config: &mut RingDrivingConfig) -> Option<&mut CameraViewConfig> {

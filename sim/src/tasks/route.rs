@@ -911,8 +911,11 @@ impl Task for RouteFollowing {
         setup.map()
     }
 
-    fn view(config: &RouteConfig) -> (View, Option<&CameraViewConfig>) {
-        (config.view, config.camera.as_ref())
+    fn camera_view(config: &RouteConfig) -> Option<&CameraViewConfig> {
+        match config.view {
+            View::CameraSegmentation => config.camera.as_ref(),
+            View::Bev | View::Scalars => None,
+        }
     }
 
     fn camera_mut(config: &mut RouteConfig) -> Option<&mut CameraViewConfig> {
