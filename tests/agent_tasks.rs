@@ -198,3 +198,41 @@ fn validation_deciding_at_another_rate_is_for_insertion_only() {
         &agent,
     );
 }
+
+/// `--steps` within the warm-up would take no gradient step, and validation would then
+/// choose a "best" among untrained networks: refused before anything is written, the hint
+/// naming both settings.
+#[test]
+fn steps_within_the_warm_up_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = SMALL_OBSTACLE_RUN.replace("warmup_steps = 200", "warmup_steps = 5000")
+        + "[agent.validation]\nepisodes = 6\n";
+    let file = dir.path().join("agent.toml");
+    std::fs::write(&file, config).unwrap();
+    let agent = dir.path().join("agent");
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "--config".as_ref(),
+        file.as_os_str(),
+        "agent".as_ref(),
+        "train".as_ref(),
+        "--task".as_ref(),
+        "obstacle-avoidance".as_ref(),
+        "--steps".as_ref(),
+        "2000".as_ref(),
+        "--out".as_ref(),
+        agent.as_os_str(),
+    ]);
+    common::assert_refused(&out, "the run's 2000 transitions are all warm-up", &agent);
+    let err = stderr(&out);
+    assert!(
+        err.contains("warmup_steps = 5000") && err.contains("more than 5000 transitions"),
+        "{err}"
+    );
+    assert!(
+        err.contains("--steps") && err.contains("[agent.dqn]"),
+        "{err}"
+    );
+    assert!(!dir.path().join("agent.partial").exists());
+}

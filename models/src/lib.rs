@@ -17,7 +17,9 @@
 //! - [`bc`]: behaviour cloning, a go / wait classifier on the agent's inputs.
 //! - [`offline`]: learning from recorded transitions: discrete CQL and behaviour cloning on
 //!   the agent's Q-network.
-//! - [`policy`]: a trained Q-network as a [`sim::baselines::Policy`] for the evaluation harness.
+//! - [`policy`]: a trained Q-network as a policy of the evaluation harness ([`sim::eval`]).
+//! - [`training`]: a training run's bookkeeping: the success rates of its curves, its summary.
+//! - [`validation`]: choosing the agent among a run's checkpoints by validation.
 //!
 //! Backend: burn's `flex` CPU backend by default ([`cpu_device`]); the `cuda` and `wgpu`
 //! features add GPU backends, chosen at run time with [`device`] (burn's `Device` is one
@@ -40,6 +42,8 @@ pub mod segmenter;
 pub mod sum_tree;
 #[cfg(feature = "libtorch")]
 pub mod torch_kernels;
+pub mod training;
+pub mod validation;
 pub mod vec_env;
 
 #[cfg(test)]

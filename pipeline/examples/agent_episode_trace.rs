@@ -16,7 +16,7 @@ use std::sync::Arc;
 
 use models::dqn::{load_network, read_agent_description};
 use models::policy::QPolicy;
-use pipeline::commands::agent::{TASK_FILE, TaskRecord};
+use pipeline::agent_folder::{TASK_FILE, TaskRecord};
 use sim::Env;
 use sim::eval::EVAL_STAGE;
 use sim::seed::derive_seed;

@@ -2,6 +2,9 @@
 //! testable: [`cli`] parses, [`run`] dispatches to [`commands`], [`ui`] is the only module
 //! that prints, [`output`] writes folders atomically, [`recording`] logs to rerun.
 
+pub mod agent_folder;
+pub mod agent_progress;
+pub mod agent_recording;
 pub mod cli;
 pub mod clip;
 pub mod commands;
@@ -11,6 +14,7 @@ pub mod inputs;
 pub mod output;
 pub mod plots;
 pub mod recording;
+pub mod tasks;
 pub mod ui;
 
 pub use cli::Cli;

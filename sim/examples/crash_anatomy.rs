@@ -11,7 +11,7 @@ use sim::baselines::{Baseline, Policy, PolicyInput};
 use sim::env::Outcome;
 use sim::eval::EVAL_STAGE;
 use sim::seed::derive_seed;
-use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
+use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion, Task};
 use sim::world::TrafficLevel;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

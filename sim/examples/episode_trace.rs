@@ -10,7 +10,7 @@ use sim::Env;
 use sim::baselines::{Baseline, Policy, PolicyInput};
 use sim::eval::EVAL_STAGE;
 use sim::seed::derive_seed;
-use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
+use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion, Task};
 use sim::world::{Leader, TrafficLevel};
 
 /// A vehicle ahead as (index, gap to 0.1 m).

@@ -6,9 +6,8 @@
 
 use std::sync::Arc;
 
-use sim::tasks::{
-    RingDriving, RingDrivingConfig, RingDrivingSetup, Task, TaskResult, run_episodes, task_table,
-};
+use sim::eval::{TaskResult, run_episodes, task_table};
+use sim::tasks::{RingDriving, RingDrivingConfig, RingDrivingSetup, Task};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);

@@ -1,16 +1,17 @@
-//! Policies for the roundabout-insertion task as the evaluation harness drives them, and
-//! the baselines every agent is reported next to.
+//! Policies for the roundabout-insertion task, on the inputs a simulated episode or a
+//! recorded log gives them, and the baselines every agent is reported next to.
 //!
 //! A [`Policy`] decides for a batch of episodes at once (one input per running episode of
 //! its batch), so a learned policy can run its network on the whole batch in one forward
 //! pass. Learned agents must only read [`PolicyInput::observation`]; the privileged
-//! [`PolicyInput::state`] is there for the rule-based baselines.
+//! [`PolicyInput::state`] is there for the rule-based baselines. The evaluation harness runs
+//! a [`Policy`] as a [`TaskPolicy`] through [`InsertionPolicy`].
 
 use serde::{Deserialize, Serialize};
 
 use crate::env::Observation;
 use crate::seed::derive_seed;
-use crate::tasks::{Action, InsertionState};
+use crate::tasks::{Action, InsertionState, RoundaboutInsertion, TaskPolicy};
 
 /// What a policy sees at one decision of one episode.
 #[derive(Debug, Clone, Copy)]
@@ -27,7 +28,8 @@ pub struct PolicyInput<'a> {
 }
 
 /// A decision rule over batches of episodes. One instance serves one worker at a time
-/// (made by the factory given to [`crate::eval::evaluate`]), hence `Send` but not `Sync`.
+/// (made by the factory given to [`crate::eval::evaluate_episodes`]), hence `Send` but not
+/// `Sync`.
 pub trait Policy: Send {
     /// One action index per input, in the same order, into `actions` (cleared first).
     fn act(&mut self, inputs: &[PolicyInput<'_>], actions: &mut Vec<usize>);
@@ -107,5 +109,49 @@ impl Policy for Baseline {
 
     fn needs_observation(&self) -> bool {
         false
+    }
+}
+
+/// A [`Policy`] as a [`TaskPolicy`] of the insertion environments: each decision gets the
+/// episode's input (its place in the batch, seed, decisions so far, observation and state).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InsertionPolicy<P>(pub P);
+
+impl<P: Policy> TaskPolicy<RoundaboutInsertion> for InsertionPolicy<P> {
+    fn act(
+        &mut self,
+        envs: &[&RoundaboutInsertion],
+        observations: &[&Observation],
+        actions: &mut Vec<usize>,
+    ) {
+        let slots: Vec<usize> = (0..envs.len()).collect();
+        self.act_in_slots(&slots, envs, observations, actions);
+    }
+
+    fn act_in_slots(
+        &mut self,
+        slots: &[usize],
+        envs: &[&RoundaboutInsertion],
+        observations: &[&Observation],
+        actions: &mut Vec<usize>,
+    ) {
+        let states: Vec<InsertionState> = envs.iter().map(|env| env.state()).collect();
+        let inputs: Vec<PolicyInput<'_>> = slots
+            .iter()
+            .zip(envs)
+            .zip(observations.iter().zip(&states))
+            .map(|((&slot, env), (observation, state))| PolicyInput {
+                slot,
+                episode_seed: env.episode_seed(),
+                step: env.decisions(),
+                observation,
+                state,
+            })
+            .collect();
+        self.0.act(&inputs, actions);
+    }
+
+    fn needs_observation(&self) -> bool {
+        self.0.needs_observation()
     }
 }

@@ -9,4 +9,7 @@ pub enum SimError {
     /// A configuration value is out of its range.
     #[error("invalid configuration: {0}")]
     Config(String),
+    /// An evaluation report could not be written as JSON.
+    #[error("cannot write the report: {0}")]
+    Report(#[from] serde_json::Error),
 }

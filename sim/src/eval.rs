@@ -1,55 +1,46 @@
-//! The evaluation harness: runs a policy for many episodes of roundabout insertion under
-//! several conditions (traffic level × the ego's aggressiveness), in parallel with rayon,
-//! and tabulates reaches, crashes, off-roads and time-overs, speed, time to enter, and the
-//! share of steps in the situations the reward counts as danger.
+//! The evaluation harness of every task: runs a policy for many episodes of a [`Task`] under
+//! its conditions (traffic levels, route splits, obstacle scenarios, traffic ×
+//! aggressiveness for roundabout insertion), in parallel with rayon, and tabulates them:
+//! outcome fractions and the task's metrics ([`TaskResult`], [`task_table`]); an agent and
+//! the task's baselines on the same episodes ([`evaluate_agent`]) make an evaluation report
+//! ([`Task::eval_report`]); validation shares ([`reached_shares`]).
 //!
-//! Plugging in a learned policy: implement [`Policy`] (its `act` gets a batch of inputs,
-//! one per running episode of a chunk, so a Q-network can do one forward pass per step)
-//! and pass a factory `|| MyPolicy::new(...)` that builds one per chunk of episodes;
-//! reading only `input.observation` keeps it honest.
+//! Plugging in a learned policy: implement [`TaskPolicy`] (its `act` gets a batch of
+//! environments and their observations, one per running episode of a chunk, so a Q-network
+//! can do one forward pass per step) and pass a factory `|| MyPolicy::new(...)` that builds
+//! one per chunk of episodes; reading only the observations keeps it honest.
 //!
 //! Determinism: episode `k` is reset with `derive_seed(seed, EVAL_STAGE, k)` under every
 //! condition (so conditions and policies are compared on the same traffic), episodes are
 //! grouped into fixed chunks of `lockstep` whatever the number of threads, and results are
 //! gathered in episode order: the same seed gives the same table with 1 or N threads.
+//!
+//! Roundabout insertion's conditions, its figures per condition and the harness for its
+//! [`crate::baselines::Policy`] interface are in [`crate::tasks::insertion_eval`] (re-exported
+//! here).
 
+use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::baselines::{Policy, PolicyInput};
-use crate::env::{Env, Observation, Outcome};
+use crate::env::{Observation, Outcome};
+use crate::error::SimError;
 use crate::seed::derive_seed;
-use crate::tasks::{EpisodeSummary, InsertionSetup, InsertionState, RoundaboutInsertion};
+use crate::tasks::{Task, TaskId, TaskPolicy, TaskSummary};
 use crate::world::TrafficLevel;
+
+pub use crate::tasks::insertion_eval::{
+    Condition, ConditionResult, TIGHT_ENTRY_S, evaluate, evaluate_episodes, markdown_table,
+    summarise, summarise_conditions,
+};
 
 /// Seed stage of evaluation episodes.
 pub const EVAL_STAGE: u64 = 0x4556_414c;
 
-/// One evaluation condition.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Condition {
-    pub traffic: TrafficLevel,
-    /// The ego's aggressiveness, fixed for the condition.
-    pub aggressiveness: f64,
-}
-
-impl Condition {
-    /// Every traffic level × aggressiveness 0, 0.5 and 1.
-    pub fn grid() -> Vec<Condition> {
-        TrafficLevel::ALL
-            .iter()
-            .flat_map(|&traffic| {
-                [0.0, 0.5, 1.0].map(|aggressiveness| Condition {
-                    traffic,
-                    aggressiveness,
-                })
-            })
-            .collect()
-    }
-}
+/// Episodes a validation runs side by side per network forward pass.
+pub const VALIDATION_LOCKSTEP: usize = 32;
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct EvalOptions {
@@ -69,240 +60,401 @@ impl Default for EvalOptions {
     }
 }
 
-/// Outcome counts and means of one condition.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ConditionResult {
-    pub traffic: TrafficLevel,
-    pub aggressiveness: f64,
-    pub episodes: usize,
-    /// Fractions of the episodes.
-    pub reaches: f64,
-    pub crashes: f64,
-    pub off_roads: f64,
-    pub time_overs: f64,
-    pub mean_return: f64,
-    pub mean_speed_mps: f64,
-    /// Mean over episodes in which the ego entered, s (None if it never did).
-    pub mean_time_to_enter_s: Option<f64>,
-    pub mean_steps: f64,
-    /// Shares of all the condition's world steps in which the ego followed closer than the
-    /// reward's headway, and was in the ring just in front of a circulating vehicle (the
-    /// situations r_danger penalises): how much risk the policy takes short of crashing.
-    #[serde(default)]
-    pub close_following_share: f64,
-    #[serde(default)]
-    pub cut_in_share: f64,
-    /// Share of the episodes in which the ego entered that it entered in front of a
-    /// circulating vehicle less than [`TIGHT_ENTRY_S`] from its merge point
-    /// ([`EpisodeSummary::entry_lag_s`]): how small the gaps it takes are.
-    #[serde(default)]
-    pub tight_entry_share: f64,
+/// The seeds of evaluation episodes `0..episodes` with `seed`.
+pub fn eval_seeds(seed: u64, episodes: usize) -> Vec<u64> {
+    (0..episodes as u64)
+        .map(|k| derive_seed(seed, EVAL_STAGE, k))
+        .collect()
 }
 
-/// An entry is tight when a circulating vehicle is less than this from the ego's merge
-/// point, s: the reward's default `cut_in_s`, within which being in front of one is danger.
-pub const TIGHT_ENTRY_S: f64 = 3.0;
+/// Runs one episode per seed, `lockstep` episodes side by side per policy instance, in
+/// parallel; summaries come back in seed order, the same whatever the thread count.
+pub fn run_episodes<E, P, FE, FP>(
+    make_env: FE,
+    make_policy: FP,
+    seeds: &[u64],
+    lockstep: usize,
+) -> Vec<E::Summary>
+where
+    E: Task,
+    P: TaskPolicy<E>,
+    FE: Fn() -> E + Sync,
+    FP: Fn() -> P + Sync,
+{
+    let chunks: Vec<&[u64]> = seeds.chunks(lockstep.max(1)).collect();
+    chunks
+        .par_iter()
+        .flat_map_iter(|chunk| run_chunk(&make_env, &mut make_policy(), chunk))
+        .collect()
+}
 
 /// Runs `options.episodes` episodes of every condition with policies from `make_policy`;
 /// `progress` is told how many episodes each finished chunk held. Summaries come back per
 /// condition, in episode order.
-pub fn evaluate_episodes<P, F>(
-    setup: &Arc<InsertionSetup>,
+pub fn evaluate_task<T, P, F>(
+    setup: &Arc<T::Setup>,
     make_policy: F,
-    conditions: &[Condition],
+    conditions: &[T::Condition],
     options: &EvalOptions,
     progress: &(dyn Fn(usize) + Sync),
-) -> Vec<Vec<EpisodeSummary>>
+) -> Vec<Vec<T::Summary>>
 where
-    P: Policy,
+    T: Task,
+    P: TaskPolicy<T>,
     F: Fn() -> P + Sync,
 {
+    let seeds = eval_seeds(options.seed, options.episodes);
     let lockstep = options.lockstep.max(1);
-    let chunks: Vec<(usize, usize)> = (0..conditions.len())
-        .flat_map(|c| {
-            (0..options.episodes)
-                .step_by(lockstep)
-                .map(move |start| (c, start))
-        })
+    let chunks: Vec<(usize, &[u64])> = (0..conditions.len())
+        .flat_map(|c| seeds.chunks(lockstep).map(move |chunk| (c, chunk)))
         .collect();
-    let done = AtomicUsize::new(0);
-    let results: Vec<(usize, Vec<EpisodeSummary>)> = chunks
+    let results: Vec<(usize, Vec<T::Summary>)> = chunks
         .par_iter()
-        .map(|&(c, start)| {
-            let end = (start + lockstep).min(options.episodes);
-            let mut policy = make_policy();
-            let out = run_chunk(setup, &mut policy, conditions[c], options.seed, start..end);
-            done.fetch_add(out.len(), Ordering::Relaxed);
+        .map(|&(c, chunk)| {
+            let make_env = || T::env(setup, &conditions[c]);
+            let out = run_chunk(&make_env, &mut make_policy(), chunk);
             progress(out.len());
             (c, out)
         })
         .collect();
-    let mut per_condition: Vec<Vec<EpisodeSummary>> = vec![Vec::new(); conditions.len()];
+    let mut per_condition: Vec<Vec<T::Summary>> = vec![Vec::new(); conditions.len()];
     for (c, summaries) in results {
         per_condition[c].extend(summaries);
     }
     per_condition
 }
 
-/// Like [`evaluate_episodes`], tabulated per condition.
-pub fn evaluate<P, F>(
-    setup: &Arc<InsertionSetup>,
-    make_policy: F,
-    conditions: &[Condition],
-    options: &EvalOptions,
-    progress: &(dyn Fn(usize) + Sync),
-) -> Vec<ConditionResult>
+/// One episode per seed in environments from `make_env`, stepped side by side.
+fn run_chunk<E, P>(make_env: &impl Fn() -> E, policy: &mut P, seeds: &[u64]) -> Vec<E::Summary>
 where
-    P: Policy,
-    F: Fn() -> P + Sync,
+    E: Task,
+    P: TaskPolicy<E>,
 {
-    let episodes = evaluate_episodes(setup, make_policy, conditions, options, progress);
-    summarise_conditions(conditions, &episodes)
-}
-
-/// [`summarise`] for every condition, from [`evaluate_episodes`]' episodes per condition.
-pub fn summarise_conditions(
-    conditions: &[Condition],
-    episodes: &[Vec<EpisodeSummary>],
-) -> Vec<ConditionResult> {
-    conditions
-        .iter()
-        .zip(episodes)
-        .map(|(condition, episodes)| summarise(*condition, episodes))
-        .collect()
-}
-
-/// Episodes `range` of one condition, stepped side by side.
-fn run_chunk<P: Policy>(
-    setup: &Arc<InsertionSetup>,
-    policy: &mut P,
-    condition: Condition,
-    seed: u64,
-    range: std::ops::Range<usize>,
-) -> Vec<EpisodeSummary> {
     let render = policy.needs_observation();
-    let mut envs: Vec<RoundaboutInsertion> = Vec::with_capacity(range.len());
-    let mut observations: Vec<Observation> = Vec::with_capacity(range.len());
-    let seeds: Vec<u64> = range
-        .clone()
-        .map(|k| derive_seed(seed, EVAL_STAGE, k as u64))
-        .collect();
-    for &episode_seed in &seeds {
-        let mut env = RoundaboutInsertion::new(Arc::clone(setup));
-        env.set_traffic(condition.traffic);
-        env.set_aggressiveness(Some(condition.aggressiveness));
-        env.set_rendering(render);
-        observations.push(env.reset(episode_seed));
+    let mut envs: Vec<E> = Vec::with_capacity(seeds.len());
+    let mut observations: Vec<Observation> = Vec::with_capacity(seeds.len());
+    for &seed in seeds {
+        let mut env = make_env();
+        if !render {
+            env.set_rendering(false);
+        }
+        observations.push(env.reset(seed));
         envs.push(env);
     }
-    let mut running: Vec<bool> = vec![true; envs.len()];
-    let mut steps = vec![0usize; envs.len()];
+    let mut running = vec![true; envs.len()];
     let mut actions = Vec::with_capacity(envs.len());
     while running.iter().any(|r| *r) {
-        let states: Vec<(usize, InsertionState)> = (0..envs.len())
-            .filter(|&i| running[i])
-            .map(|i| (i, envs[i].state()))
-            .collect();
-        let inputs: Vec<PolicyInput<'_>> = states
-            .iter()
-            .map(|(i, state)| PolicyInput {
-                slot: *i,
-                episode_seed: seeds[*i],
-                step: steps[*i],
-                observation: &observations[*i],
-                state,
-            })
-            .collect();
-        policy.act(&inputs, &mut actions);
-        let chosen: Vec<(usize, usize)> = states
-            .iter()
-            .map(|(i, _)| *i)
-            .zip(actions.iter().copied())
-            .collect();
-        for (i, action) in chosen {
+        let live: Vec<usize> = (0..envs.len()).filter(|&i| running[i]).collect();
+        let env_refs: Vec<&E> = live.iter().map(|&i| &envs[i]).collect();
+        let obs_refs: Vec<&Observation> = live.iter().map(|&i| &observations[i]).collect();
+        policy.act_in_slots(&live, &env_refs, &obs_refs, &mut actions);
+        for (&i, &action) in live.iter().zip(actions.iter()) {
             let step = envs[i].step(action);
-            steps[i] += 1;
             observations[i] = step.observation;
             if step.outcome.is_some() {
                 running[i] = false;
             }
         }
     }
-    envs.iter().map(RoundaboutInsertion::summary).collect()
+    envs.iter().map(Task::summary).collect()
 }
 
-/// Counts and means of one condition's episodes.
-pub fn summarise(condition: Condition, episodes: &[EpisodeSummary]) -> ConditionResult {
-    let n = episodes.len();
-    let frac = |o: Outcome| {
-        if n == 0 {
-            0.0
-        } else {
-            episodes.iter().filter(|e| e.outcome == o).count() as f64 / n as f64
+/// Validates `policy` for a training run at `traffic`: per validation condition of the task
+/// ([`Task::validation_conditions`]), the share of `episodes` greedy episodes, drawn as an
+/// evaluation with `seed` draws them, that reached the goal.
+pub fn reached_shares<T, P>(
+    setup: &Arc<T::Setup>,
+    policy: &P,
+    traffic: TrafficLevel,
+    episodes: usize,
+    seed: u64,
+) -> Vec<(String, f64)>
+where
+    T: Task,
+    P: TaskPolicy<T> + Clone + Sync,
+{
+    let (names, conditions): (Vec<String>, Vec<T::Condition>) =
+        T::validation_conditions(traffic).into_iter().unzip();
+    let options = EvalOptions {
+        episodes,
+        seed,
+        lockstep: VALIDATION_LOCKSTEP,
+    };
+    let episodes = evaluate_task(setup, || policy.clone(), &conditions, &options, &|_| {});
+    names
+        .into_iter()
+        .zip(&episodes)
+        .map(|(name, episodes)| (name, TaskResult::of(episodes).reaches))
+        .collect()
+}
+
+/// Every policy's episodes under every condition: the agent first, then the baselines.
+#[derive(Debug, Clone)]
+pub struct Evaluation<T: Task> {
+    pub conditions: Vec<T::Condition>,
+    /// Per policy (by name), per condition, every episode in order.
+    pub policies: Vec<(String, Vec<Vec<T::Summary>>)>,
+}
+
+/// Evaluates `agent` (as "agent") and, with `baselines`, the task's baselines, on the same
+/// episodes of every condition; `progress` is told what runs.
+pub fn evaluate_agent<T, P>(
+    setup: &Arc<T::Setup>,
+    agent: &P,
+    conditions: Vec<T::Condition>,
+    options: &EvalOptions,
+    baselines: bool,
+    progress: &mut dyn FnMut(&str),
+) -> Evaluation<T>
+where
+    T: Task,
+    P: TaskPolicy<T> + Clone + Sync,
+{
+    let quiet = |_: usize| {};
+    progress(&format!(
+        "agent: {} episodes × {} conditions",
+        options.episodes,
+        conditions.len()
+    ));
+    let mut policies = vec![(
+        "agent".to_owned(),
+        evaluate_task(setup, || agent.clone(), &conditions, options, &quiet),
+    )];
+    if baselines {
+        for (name, make_policy) in T::baselines() {
+            progress(&format!("baseline {name}"));
+            let episodes = evaluate_task(setup, &make_policy, &conditions, options, &quiet);
+            policies.push((name, episodes));
         }
-    };
-    let mean = |f: &dyn Fn(&EpisodeSummary) -> f64| {
-        if n == 0 {
-            0.0
-        } else {
-            episodes.iter().map(f).sum::<f64>() / n as f64
-        }
-    };
-    let entered: Vec<f64> = episodes.iter().filter_map(|e| e.time_to_enter_s).collect();
-    let total_steps = episodes.iter().map(|e| e.steps).sum::<usize>().max(1) as f64;
-    let share = |f: &dyn Fn(&EpisodeSummary) -> usize| {
-        episodes.iter().map(f).sum::<usize>() as f64 / total_steps
-    };
-    ConditionResult {
-        traffic: condition.traffic,
-        aggressiveness: condition.aggressiveness,
-        episodes: n,
-        reaches: frac(Outcome::Reached),
-        crashes: frac(Outcome::Crashed),
-        off_roads: frac(Outcome::OffRoad),
-        time_overs: frac(Outcome::TimeOver),
-        mean_return: mean(&|e| e.episode_return),
-        mean_speed_mps: mean(&|e| e.mean_speed_mps),
-        mean_time_to_enter_s: (!entered.is_empty())
-            .then(|| entered.iter().sum::<f64>() / entered.len() as f64),
-        mean_steps: mean(&|e| e.steps as f64),
-        close_following_share: share(&|e| e.close_following_steps),
-        cut_in_share: share(&|e| e.cut_in_steps),
-        tight_entry_share: if entered.is_empty() {
-            0.0
-        } else {
-            episodes
-                .iter()
-                .filter(|e| e.entry_lag_s.is_some_and(|lag| lag < TIGHT_ENTRY_S))
-                .count() as f64
-                / entered.len() as f64
-        },
+    }
+    Evaluation {
+        conditions,
+        policies,
     }
 }
 
-/// A markdown table: one row per (policy, condition).
-pub fn markdown_table(rows: &[(String, Vec<ConditionResult>)]) -> String {
-    let mut out = String::from(
-        "| policy | traffic | aggressiveness | episodes | reaches | crashes | time-overs | off-road | mean speed m/s | time to enter s | close following | tight entries |\n\
-         | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+/// What an evaluation report says of its run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalHeader {
+    /// The agent folder.
+    pub agent: PathBuf,
+    pub task: TaskId,
+    /// The map evaluated on (None for a task on its own road).
+    pub map: Option<PathBuf>,
+    /// The map the agent was trained on.
+    pub trained_on: Option<PathBuf>,
+    /// Per condition and policy.
+    pub episodes: usize,
+    pub seed: u64,
+}
+
+/// The files of an evaluation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalReport {
+    /// `eval.json` (pretty-printed, without the final line break).
+    pub json: String,
+    /// `eval.md`: the tables.
+    pub markdown: String,
+    /// More files, by name.
+    pub extra: Vec<(&'static str, String)>,
+}
+
+/// `eval.json` of a task evaluated per named condition.
+#[derive(Debug, Serialize)]
+struct ConditionsJson<'a> {
+    agent: &'a PathBuf,
+    task: TaskId,
+    map: &'a Option<PathBuf>,
+    trained_on: &'a Option<PathBuf>,
+    episodes: usize,
+    seed: u64,
+    conditions: Vec<NamedCondition>,
+}
+
+#[derive(Debug, Serialize)]
+struct NamedCondition {
+    condition: String,
+    /// The agent first, then the baselines, each on the same episodes (seeds).
+    policies: Vec<NamedResult>,
+}
+
+#[derive(Debug, Serialize)]
+struct NamedResult {
+    policy: String,
+    #[serde(flatten)]
+    result: TaskResult,
+}
+
+/// The default evaluation report: per condition (by [`Task::condition_name`]), a
+/// [`TaskResult`] per policy, as JSON and as one markdown table per condition.
+pub fn conditions_report<T: Task>(
+    header: &EvalHeader,
+    evaluation: &Evaluation<T>,
+) -> Result<EvalReport, SimError> {
+    let mut conditions = Vec::with_capacity(evaluation.conditions.len());
+    let mut tables = String::new();
+    for (c, condition) in evaluation.conditions.iter().enumerate() {
+        let name = T::condition_name(condition);
+        let rows: Vec<(String, TaskResult)> = evaluation
+            .policies
+            .iter()
+            .map(|(policy, episodes)| (policy.clone(), TaskResult::of(&episodes[c])))
+            .collect();
+        tables.push_str(&format!("## {name}\n\n{}\n", task_table(&rows)));
+        conditions.push(NamedCondition {
+            condition: name,
+            policies: rows
+                .into_iter()
+                .map(|(policy, result)| NamedResult { policy, result })
+                .collect(),
+        });
+    }
+    let json = ConditionsJson {
+        agent: &header.agent,
+        task: header.task,
+        map: &header.map,
+        trained_on: &header.trained_on,
+        episodes: header.episodes,
+        seed: header.seed,
+        conditions,
+    };
+    let markdown = format!(
+        "# {} ({}){}\n\n{} episodes per condition and policy, seed {}; the same episodes for every policy.\n\n{tables}",
+        header.agent.display(),
+        header.task.name(),
+        header
+            .map
+            .as_ref()
+            .map_or(String::new(), |m| format!(" on {}", m.display())),
+        header.episodes,
+        header.seed,
     );
-    for (policy, results) in rows {
-        for r in results {
-            out.push_str(&format!(
-                "| {policy} | {} | {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {:.2} % | {:.1} % |\n",
-                r.traffic.name(),
-                r.aggressiveness,
-                r.episodes,
-                100.0 * r.reaches,
-                100.0 * r.crashes,
-                100.0 * r.time_overs,
-                100.0 * r.off_roads,
-                r.mean_speed_mps,
-                r.mean_time_to_enter_s.map_or("-".into(), |t| format!("{t:.1}")),
-                100.0 * r.close_following_share,
-                100.0 * r.tight_entry_share,
-            ));
+    Ok(EvalReport {
+        json: serde_json::to_string_pretty(&json)?,
+        markdown,
+        extra: Vec::new(),
+    })
+}
+
+/// Outcome fractions and metric means of one policy's episodes.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TaskResult {
+    pub episodes: usize,
+    pub reaches: f64,
+    pub crashes: f64,
+    pub off_roads: f64,
+    pub time_overs: f64,
+    pub mean_return: f64,
+    /// Means over the episodes that give the metric (NaN ones left out), by name.
+    pub metrics: Vec<(String, Option<f64>)>,
+}
+
+impl TaskResult {
+    pub fn of<S: TaskSummary>(episodes: &[S]) -> TaskResult {
+        let n = episodes.len();
+        let frac = |o: Outcome| {
+            episodes.iter().filter(|e| e.outcome() == o).count() as f64 / n.max(1) as f64
+        };
+        let per_episode: Vec<Vec<(&'static str, f64)>> =
+            episodes.iter().map(TaskSummary::metrics).collect();
+        let names: Vec<&'static str> = per_episode
+            .first()
+            .map(|m| m.iter().map(|(name, _)| *name).collect())
+            .unwrap_or_default();
+        let metrics = names
+            .iter()
+            .enumerate()
+            .map(|(k, name)| {
+                let values: Vec<f64> = per_episode
+                    .iter()
+                    .filter_map(|m| m.get(k).map(|(_, v)| *v))
+                    .filter(|v| !v.is_nan())
+                    .collect();
+                let mean =
+                    (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
+                ((*name).to_owned(), mean)
+            })
+            .collect();
+        TaskResult {
+            episodes: n,
+            reaches: frac(Outcome::Reached),
+            crashes: frac(Outcome::Crashed),
+            off_roads: frac(Outcome::OffRoad),
+            time_overs: frac(Outcome::TimeOver),
+            mean_return: episodes
+                .iter()
+                .map(TaskSummary::episode_return)
+                .sum::<f64>()
+                / n.max(1) as f64,
+            metrics,
         }
+    }
+}
+
+/// A markdown table of policies' results: outcome fractions, then the task's metrics.
+pub fn task_table(rows: &[(String, TaskResult)]) -> String {
+    let metric_names: Vec<&str> = rows
+        .first()
+        .map(|(_, r)| r.metrics.iter().map(|(n, _)| n.as_str()).collect())
+        .unwrap_or_default();
+    let mut out = String::from(
+        "| policy | episodes | reached | crashed | off road | time over | mean return |",
+    );
+    for name in &metric_names {
+        out.push_str(&format!(" {name} |"));
+    }
+    out.push_str("\n|");
+    // Seven fixed columns (policy to mean return), then the metrics.
+    out.push_str(&" --- |".repeat(7 + metric_names.len()));
+    out.push('\n');
+    for (policy, r) in rows {
+        out.push_str(&format!(
+            "| {policy} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} |",
+            r.episodes,
+            100.0 * r.reaches,
+            100.0 * r.crashes,
+            100.0 * r.off_roads,
+            100.0 * r.time_overs,
+            r.mean_return,
+        ));
+        for (_, value) in &r.metrics {
+            match value {
+                Some(v) => out.push_str(&format!(" {v:.2} |")),
+                None => out.push_str(" - |"),
+            }
+        }
+        out.push('\n');
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Clone, Serialize)]
+    struct One(Outcome);
+
+    impl TaskSummary for One {
+        fn outcome(&self) -> Outcome {
+            self.0
+        }
+        fn episode_return(&self) -> f64 {
+            1.0
+        }
+        fn metrics(&self) -> Vec<(&'static str, f64)> {
+            vec![("a m", 1.0), ("b s", f64::NAN)]
+        }
+    }
+
+    #[test]
+    fn every_table_row_has_the_header_s_columns() {
+        let result = TaskResult::of(&[One(Outcome::Reached), One(Outcome::Crashed)]);
+        assert_eq!(result.metrics[0].1, Some(1.0));
+        assert_eq!(result.metrics[1].1, None);
+        let table = task_table(&[("p".into(), result)]);
+        let columns: Vec<usize> = table.lines().map(|l| l.matches('|').count()).collect();
+        assert_eq!(columns.len(), 3);
+        assert!(columns.iter().all(|&c| c == columns[0]), "{table}");
+    }
 }

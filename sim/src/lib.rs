@@ -8,11 +8,12 @@
 //! - [`world`]: the traffic world (IDM, gap acceptance, aggressiveness, spawning, the ego's
 //!   kinematic bicycle), deterministic under a seed.
 //! - [`render`]: the bird's-eye representation (layers, frame stack).
-//! - [`tasks`]: roundabout insertion as an [`Env`].
+//! - [`tasks`]: the driving tasks, each an [`Env`] implementing [`tasks::Task`], listed in
+//!   one registry ([`tasks::registry`]).
 //! - [`observer`]: which layers a task observes ([`observer::View`]) and the hook for layers
 //!   drawn outside `sim` (the camera-segmentation view of `models`).
-//! - [`baselines`] and [`eval`]: rule-based and constant policies, and the parallel
-//!   evaluation harness that learned policies plug into.
+//! - [`baselines`] and [`eval`]: roundabout insertion's rules, and the parallel evaluation
+//!   harness of every task that learned policies plug into.
 
 pub mod baselines;
 pub mod env;

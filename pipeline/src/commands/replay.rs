@@ -43,8 +43,8 @@ use sim::tasks::insertion::{
 use sim::{Observation, ObservationSpec};
 
 use super::Context;
-use super::agent::train::{models_error, read_task};
 use super::logs::{RoleArgs, log_error, objects_topic};
+use crate::agent_folder::{TASK_FILE, models_error, read_task};
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
 use crate::output::write_json;
@@ -759,7 +759,7 @@ fn eval(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         Some(dir) => {
             progress.step(&format!("loading the agent {}", dir.display()));
             let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
-            let config = read_task(dir)?.insertion_config(&dir.join(super::agent::TASK_FILE))?;
+            let config = read_task(dir)?.insertion_config(&dir.join(TASK_FILE))?;
             refuse_unprojectable(&config, &format!("the agent in {}", dir.display()))?;
             let network =
                 load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;

@@ -16,7 +16,9 @@
 //!   lane), Crashed (its footprint overlaps another's), OffRoad (its centre leaves the
 //!   navigable area), TimeOver (`time_limit_s`).
 //! - The ego's aggressiveness is drawn uniformly in [0, 1] per episode for training, or
-//!   fixed for evaluation; other drivers draw their own.
+//!   fixed for evaluation ([`insertion_eval`](super::insertion_eval): conditions of traffic
+//!   × aggressiveness); other drivers draw their own.
+//! - Baselines: the Parma study's rules ([`crate::baselines::Baseline::STANDARD`]).
 
 use std::sync::Arc;
 
@@ -25,30 +27,28 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::insertion_eval::{self, Condition};
 pub use super::motion_inputs::{MOTION_SCALARS, MotionHistory};
-use super::roundabouts::{EgoView, RoundaboutSet, ego_scene};
+use super::roundabouts::{EgoView, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
+use super::{
+    ConditionChoice, Episode, LayerFrame, PolicyFactory, Task, TaskId, TaskSummary, check_positive,
+};
+use crate::baselines::{Baseline, InsertionPolicy};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
+use crate::eval::{EvalHeader, EvalReport, Evaluation};
+use crate::observer::SceneObserver;
 use crate::render::{BevConfig, BevRenderer};
-use crate::roundabout::{LayoutConfig, RoundaboutLayout};
+use crate::roundabout::LayoutConfig;
 use crate::scene::Scene;
 use crate::world::{Driver, EgoConfig, TrafficConfig, TrafficLevel, World};
 
-/// The three actions, by index.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Action {
-    Permitted = 0,
-    NotPermitted = 1,
-    Caution = 2,
-}
-
-impl Action {
-    pub const ALL: [Action; 3] = [Action::Permitted, Action::NotPermitted, Action::Caution];
-    pub const NAMES: [&'static str; 3] = ["permitted", "not_permitted", "caution"];
-
-    pub fn from_index(i: usize) -> Option<Action> {
-        Action::ALL.get(i).copied()
+actions! {
+    /// The three actions, by index.
+    pub enum Action {
+        Permitted = 0 => "permitted",
+        NotPermitted = 1 => "not_permitted",
+        Caution = 2 => "caution",
     }
 }
 
@@ -318,46 +318,34 @@ pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
 
 /// What is prepared once per map and shared by every environment on it (read-only):
 /// the routes of each usable roundabout and its static bird's-eye raster.
-#[derive(Debug)]
-pub struct InsertionSetup {
-    config: InsertionConfig,
-    roundabouts: RoundaboutSet,
-}
+pub type InsertionSetup = RoundaboutSetup<InsertionConfig>;
 
 impl InsertionSetup {
     /// Prepares every roundabout of `map` that has a route from an entry through the ring
     /// to an exit. Fails when there is none, or the configuration is invalid.
     pub fn new(map: Arc<Map>, config: InsertionConfig) -> Result<Arc<Self>, SimError> {
         validate(&config)?;
-        let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
-        Ok(Arc::new(InsertionSetup {
-            config,
-            roundabouts,
-        }))
+        Self::prepare(map, config, None)
+    }
+}
+
+impl RoundaboutTaskConfig for InsertionConfig {
+    fn layout(&self) -> &LayoutConfig {
+        &self.layout
     }
 
-    pub fn map(&self) -> &Arc<Map> {
-        self.roundabouts.map()
+    fn bev(&self) -> &BevConfig {
+        &self.observation
     }
 
-    pub fn config(&self) -> &InsertionConfig {
-        &self.config
-    }
-
-    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
-        self.roundabouts.layouts()
-    }
-
-    pub fn observation_spec(&self) -> ObservationSpec {
-        self.config
-            .observation
-            .observation_spec(self.config.scalar_count())
+    fn observation_spec(&self) -> ObservationSpec {
+        self.observation.observation_spec(self.scalar_count())
     }
 }
 
 fn validate(c: &InsertionConfig) -> Result<(), SimError> {
     c.observation.validate()?;
-    let positive = [
+    check_positive(&[
         ("traffic.step_s", c.traffic.step_s),
         ("time_limit_s", c.time_limit_s),
         ("speed_scale_mps", c.speed_scale_mps),
@@ -365,12 +353,7 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
         ("comfort_decel_mps2", c.comfort_decel_mps2),
         ("reward.danger_sigma_power", c.reward.danger_sigma_power),
         ("reward.short_entry_s", c.reward.short_entry_s),
-    ];
-    for (name, v) in positive {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(SimError::Config(format!("{name} = {v} must be positive")));
-        }
-    }
+    ])?;
     if c.action_repeat == 0 {
         return Err(SimError::Config(
             "action_repeat = 0: at least one world step per decision".to_owned(),
@@ -450,11 +433,15 @@ pub struct RoundaboutInsertion {
     route: usize,
     aggressiveness: f64,
     last_action: Action,
-    steps: usize,
+    /// World steps, return, outcome and the ego's positions (one per world step).
+    episode: Episode,
+    /// The seed of the current episode, and the decisions taken in it (the inputs of a
+    /// [`crate::baselines::Policy`]).
+    episode_seed: u64,
+    decisions: usize,
     start_time_s: f64,
     goal_s: f64,
     time_limit_s: f64,
-    episode_return: f64,
     speed_sum: f64,
     entered_at_s: Option<f64>,
     entry_lag_s: Option<f64>,
@@ -462,8 +449,6 @@ pub struct RoundaboutInsertion {
     cut_off: Vec<u32>,
     close_following_steps: usize,
     cut_in_steps: usize,
-    outcome: Option<Outcome>,
-    trajectory: Vec<Point>,
     view: EgoView,
     /// The ego's speeds this episode, for [`InsertionConfig::motion_inputs`].
     motion: MotionHistory,
@@ -486,29 +471,22 @@ impl RoundaboutInsertion {
             route: 0,
             aggressiveness: 0.5,
             last_action: Action::Permitted,
-            steps: 0,
+            episode: Episode::default(),
+            episode_seed: 0,
+            decisions: 0,
             start_time_s: 0.0,
             goal_s: 0.0,
             time_limit_s: 0.0,
-            episode_return: 0.0,
             speed_sum: 0.0,
             entered_at_s: None,
             entry_lag_s: None,
             cut_off: Vec::new(),
             close_following_steps: 0,
             cut_in_steps: 0,
-            outcome: None,
-            trajectory: Vec::new(),
             view,
             motion,
             follower,
         }
-    }
-
-    /// Turns drawing the bird's-eye layers on or off (off: observations carry empty
-    /// layers; the episodes themselves do not change).
-    pub fn set_rendering(&mut self, on: bool) {
-        self.view.set_rendering(on);
     }
 
     /// Sets the traffic level of the following episodes.
@@ -531,12 +509,17 @@ impl RoundaboutInsertion {
 
     /// The episode's outcome once it has ended.
     pub fn outcome(&self) -> Option<Outcome> {
-        self.outcome
+        self.episode.outcome
     }
 
-    /// The ego's positions so far this episode (one per step, the start included).
-    pub fn trajectory(&self) -> &[Point] {
-        &self.trajectory
+    /// The seed the current episode was reset with.
+    pub fn episode_seed(&self) -> u64 {
+        self.episode_seed
+    }
+
+    /// Decisions taken so far in the episode ([`Env::step`] calls).
+    pub fn decisions(&self) -> usize {
+        self.decisions
     }
 
     /// The newest bird's-eye frame (`[layer, row, column]`, see [`BevConfig::layers`]).
@@ -544,38 +527,10 @@ impl RoundaboutInsertion {
         self.view.newest()
     }
 
-    /// The current scene (None before the first reset).
-    pub fn scene(&self) -> Option<Scene<'_>> {
-        ego_scene(
-            self.setup.map(),
-            self.world.as_ref()?,
-            self.start_time_s,
-            Some(self.aggressiveness),
-        )
-    }
-
     /// The bird's-eye renderer of the current episode's roundabout: what draws the layers,
     /// so a scene rebuilt elsewhere (from a recorded log) is drawn exactly the same way.
     pub fn renderer(&self) -> &BevRenderer {
         self.setup.roundabouts.renderer(self.roundabout)
-    }
-
-    pub fn summary(&self) -> EpisodeSummary {
-        EpisodeSummary {
-            outcome: self.outcome.unwrap_or(Outcome::TimeOver),
-            steps: self.steps,
-            episode_return: self.episode_return,
-            mean_speed_mps: if self.steps > 0 {
-                self.speed_sum / self.steps as f64
-            } else {
-                0.0
-            },
-            time_to_enter_s: self.entered_at_s,
-            aggressiveness: self.aggressiveness,
-            close_following_steps: self.close_following_steps,
-            cut_in_steps: self.cut_in_steps,
-            entry_lag_s: self.entry_lag_s,
-        }
     }
 
     /// What the rule-based baselines see.
@@ -825,6 +780,8 @@ impl Env for RoundaboutInsertion {
     }
 
     fn reset(&mut self, seed: u64) -> Observation {
+        self.episode_seed = seed;
+        self.decisions = 0;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         (self.roundabout, self.route) = self.setup.roundabouts.draw_route(&mut rng);
         let layout = Arc::clone(self.setup.roundabouts.layout(self.roundabout));
@@ -856,19 +813,17 @@ impl Env for RoundaboutInsertion {
         self.start_time_s = world.time_s();
         self.world = Some(world);
         self.last_action = Action::Permitted;
-        self.steps = 0;
-        self.episode_return = 0.0;
         self.speed_sum = 0.0;
         self.entered_at_s = None;
         self.entry_lag_s = None;
         self.cut_off.clear();
         self.close_following_steps = 0;
         self.cut_in_steps = 0;
-        self.outcome = None;
-        self.trajectory.clear();
-        if let Some((w, e)) = self.world_and_ego() {
-            let (p, v) = (w.vehicles()[e].position, w.vehicles()[e].speed);
-            self.trajectory.push(p);
+        let start = self
+            .world_and_ego()
+            .map(|(w, e)| (w.vehicles()[e].position, w.vehicles()[e].speed));
+        self.episode.reset(start.map(|(p, _)| p));
+        if let Some((_, v)) = start {
             self.motion.reset(v);
         }
         self.render(true);
@@ -876,17 +831,16 @@ impl Env for RoundaboutInsertion {
     }
 
     fn step(&mut self, action: usize) -> Step {
-        let finished = Step {
-            observation: self.observation(),
-            reward: 0.0,
-            outcome: Some(self.outcome.unwrap_or(Outcome::TimeOver)),
+        let world = if self.episode.ended() {
+            None
+        } else {
+            self.world.take()
         };
-        if self.outcome.is_some() {
-            return finished;
-        }
-        let Some(mut world) = self.world.take() else {
-            return finished; // never reset
+        let Some(mut world) = world else {
+            // After the end, or never reset.
+            return self.episode.finished_step(self.observation());
         };
+        self.decisions += 1;
         let action = Action::from_index(action).unwrap_or(Action::NotPermitted);
         let (mut reward, mut outcome) = (0.0, None);
         for _ in 0..self.config.action_repeat {
@@ -910,16 +864,178 @@ impl Env for RoundaboutInsertion {
             }
         }
         self.world = Some(world);
-        self.outcome = outcome;
-        self.episode_return += reward;
         if !self.config.frames_every_step() {
             self.render(false);
         }
-        Step {
-            observation: self.observation(),
-            reward: reward as f32,
-            outcome,
+        self.episode.step(self.observation(), reward, outcome)
+    }
+}
+
+impl Task for RoundaboutInsertion {
+    type Config = InsertionConfig;
+    type Setup = InsertionSetup;
+    type Summary = EpisodeSummary;
+    type Condition = Condition;
+
+    const ID: TaskId = TaskId::RoundaboutInsertion;
+
+    fn setup(
+        map: Option<Arc<Map>>,
+        config: InsertionConfig,
+        _: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<InsertionSetup>, SimError> {
+        let map = map.ok_or_else(|| SimError::Map("roundabout insertion needs a map".into()))?;
+        InsertionSetup::new(map, config)
+    }
+
+    fn map(setup: &InsertionSetup) -> &Map {
+        setup.map()
+    }
+
+    fn deciding_every(config: &InsertionConfig, steps: usize) -> Option<InsertionConfig> {
+        Some(config.deciding_every(steps))
+    }
+
+    fn training_env(setup: &Arc<InsertionSetup>, traffic: TrafficLevel) -> Self {
+        let mut env = RoundaboutInsertion::new(Arc::clone(setup));
+        env.set_traffic(traffic);
+        env
+    }
+
+    fn env(setup: &Arc<InsertionSetup>, condition: &Condition) -> Self {
+        let mut env = RoundaboutInsertion::new(Arc::clone(setup));
+        env.set_traffic(condition.traffic);
+        env.set_aggressiveness(Some(condition.aggressiveness));
+        env
+    }
+
+    /// Traffic levels × aggressiveness values (by default every level × 0, 0.5 and 1).
+    fn conditions(choice: &ConditionChoice) -> Vec<Condition> {
+        let aggressiveness = if choice.aggressiveness.is_empty() {
+            vec![0.0, 0.5, 1.0]
+        } else {
+            choice.aggressiveness.clone()
+        };
+        choice
+            .traffic_levels()
+            .into_iter()
+            .flat_map(|traffic| {
+                aggressiveness.iter().map(move |&aggressiveness| Condition {
+                    traffic,
+                    aggressiveness,
+                })
+            })
+            .collect()
+    }
+
+    fn condition_name(condition: &Condition) -> String {
+        condition.name()
+    }
+
+    /// At the training traffic, for each of the evaluation's aggressiveness values.
+    fn validation_conditions(traffic: TrafficLevel) -> Vec<(String, Condition)> {
+        [0.0, 0.5, 1.0]
+            .map(|aggressiveness| {
+                let condition = Condition {
+                    traffic,
+                    aggressiveness,
+                };
+                (format!("aggressiveness {aggressiveness}"), condition)
+            })
+            .to_vec()
+    }
+
+    fn recorded_condition(traffic: TrafficLevel) -> Condition {
+        Condition {
+            traffic,
+            aggressiveness: 0.5,
         }
+    }
+
+    /// Medium traffic, aggressiveness 0.5, whatever the conditions.
+    fn recorded_eval_condition(_: &[Condition]) -> Condition {
+        Self::recorded_condition(TrafficLevel::Medium)
+    }
+
+    fn eval_report(
+        header: &EvalHeader,
+        evaluation: &Evaluation<Self>,
+    ) -> Result<EvalReport, SimError> {
+        insertion_eval::report(header, evaluation)
+    }
+
+    fn summary(&self) -> EpisodeSummary {
+        EpisodeSummary {
+            outcome: self.episode.final_outcome(),
+            steps: self.episode.steps,
+            episode_return: self.episode.episode_return,
+            mean_speed_mps: self.episode.mean(self.speed_sum),
+            time_to_enter_s: self.entered_at_s,
+            aggressiveness: self.aggressiveness,
+            close_following_steps: self.close_following_steps,
+            cut_in_steps: self.cut_in_steps,
+            entry_lag_s: self.entry_lag_s,
+        }
+    }
+
+    /// The Parma study's rules, always Permitted, random and always Not Permitted.
+    fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
+        Baseline::STANDARD
+            .into_iter()
+            .map(|baseline| {
+                let make: PolicyFactory<Self> =
+                    Box::new(move || Box::new(InsertionPolicy(baseline)));
+                (baseline.name(), make)
+            })
+            .collect()
+    }
+
+    /// The current scene (None before the first reset).
+    fn scene(&self) -> Option<Scene<'_>> {
+        ego_scene(
+            self.setup.map(),
+            self.world.as_ref()?,
+            self.start_time_s,
+            Some(self.aggressiveness),
+        )
+    }
+
+    /// The ego's positions so far this episode (one per step, the start included).
+    fn trajectory(&self) -> &[Point] {
+        &self.episode.trajectory
+    }
+
+    fn set_rendering(&mut self, on: bool) {
+        self.view.set_rendering(on);
+    }
+
+    /// The newest bird's-eye frame.
+    fn recorded_layers(&self) -> Option<LayerFrame<'_>> {
+        let bev = &self.setup.config().observation;
+        Some(LayerFrame {
+            layers: self.newest_frame(),
+            names: &bev.layers,
+            width: bev.width,
+            height: bev.height,
+        })
+    }
+}
+
+impl TaskSummary for EpisodeSummary {
+    fn outcome(&self) -> Outcome {
+        self.outcome
+    }
+
+    fn episode_return(&self) -> f64 {
+        self.episode_return
+    }
+
+    fn metrics(&self) -> Vec<(&'static str, f64)> {
+        vec![
+            ("mean speed m/s", self.mean_speed_mps),
+            ("time to enter s", self.time_to_enter_s.unwrap_or(f64::NAN)),
+            ("entry lag s", self.entry_lag_s.unwrap_or(f64::NAN)),
+        ]
     }
 }
 
@@ -929,13 +1045,13 @@ impl RoundaboutInsertion {
         let Some(ego) = world.ego_index() else {
             return (0.0, Some(Outcome::TimeOver));
         };
-        self.steps += 1;
+        self.episode.steps += 1;
         let (speed, position, s, committed) = {
             let me = &world.vehicles()[ego];
             (me.speed, me.position, me.s, me.committed)
         };
         self.speed_sum += speed;
-        self.trajectory.push(position);
+        self.episode.trajectory.push(position);
         self.motion.push(speed);
         let elapsed = world.time_s() - self.start_time_s;
         let just_entered = committed && self.entered_at_s.is_none();

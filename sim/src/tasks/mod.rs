@@ -1,42 +1,161 @@
 //! Driving tasks: actions, reward, termination, metrics and baselines on the traffic world.
 //!
-//! Every task is an [`Env`]: roundabout insertion ([`insertion`]) and roundabout driving
-//! ([`ring_driving`]), sharing the prepared roundabouts and the ego's view
-//! ([`roundabouts`]). Roundabout insertion has its own evaluation harness
-//! ([`crate::eval`], conditions of traffic × aggressiveness); the other tasks implement
-//! [`Task`] and are evaluated by [`run_episodes`] with any [`TaskPolicy`]: a learned
+//! Every task implements [`Task`]: an [`Env`] with its settings table, its setup (prepared
+//! once per map and shared by its environments), its evaluation conditions, the summary of
+//! an episode and its baselines. The registry ([`registry`]) lists them by name; the one
+//! evaluation harness ([`crate::eval`]) runs any of them with any [`TaskPolicy`]: a learned
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
+//!
+//! - [`insertion`]: roundabout insertion (its evaluation: [`insertion_eval`]);
+//!   [`ring_driving`]: roundabout driving; [`route`]: campus route following;
+//!   [`obstacle`]: obstacle avoidance. Each file holds what is the task's own: its actions,
+//!   reward, termination, metrics and rules.
+//! - What they share: [`episode`] (the bookkeeping of an episode), `actions!` (action
+//!   tables), [`roundabouts`] (the prepared roundabouts and the ego's view of the
+//!   roundabout tasks), [`motion_inputs`].
 
+/// Declares a task's actions: an enum indexed from 0 with `ALL`, `NAMES` (the serde names,
+/// as written in files and recordings) and `from_index`.
+macro_rules! actions {
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident {
+            $($(#[$variant_meta:meta])* $variant:ident = $index:literal => $label:literal,)+
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+        $vis enum $name {
+            $($(#[$variant_meta])* #[serde(rename = $label)] $variant = $index,)+
+        }
+
+        impl $name {
+            pub const ALL: [$name; [$($label),+].len()] = [$($name::$variant),+];
+            pub const NAMES: [&'static str; [$($label),+].len()] = [$($label),+];
+
+            pub fn from_index(i: usize) -> Option<$name> {
+                $name::ALL.get(i).copied()
+            }
+        }
+    };
+}
+
+pub mod episode;
 pub mod insertion;
+pub mod insertion_eval;
 pub mod motion_inputs;
 pub mod obstacle;
+pub mod registry;
 pub mod ring_driving;
 pub mod roundabouts;
 pub mod route;
 
-use rayon::prelude::*;
-use serde::Serialize;
+use std::fmt::Debug;
+use std::sync::Arc;
 
-use maps::Point;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use maps::{Map, Point};
 
 use crate::env::{Env, Observation, Outcome};
+use crate::error::SimError;
+use crate::eval::{EvalHeader, EvalReport, Evaluation};
+use crate::observer::{CameraViewConfig, SceneObserver};
 use crate::scene::Scene;
+use crate::world::TrafficLevel;
 
+pub use episode::Episode;
 pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
     RoundaboutInsertion,
 };
 pub use obstacle::{ObstacleAvoidance, ObstacleConfig, ObstacleSetup, ObstacleSummary};
+pub use registry::{TASKS, TaskId, TaskInfo, TaskVisitor};
 pub use ring_driving::{
     PursuitRule, RingDriving, RingDrivingConfig, RingDrivingSetup, RingDrivingSummary,
     RingRewardConfig, SteerAction,
 };
-pub use roundabouts::{EgoView, RoundaboutSet, ego_scene};
+pub use roundabouts::{EgoView, RoundaboutSet, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
 
-/// A task whose finished episodes can be summarised for evaluation tables.
-pub trait Task: Env + Sized {
+/// A driving task: an [`Env`] with everything training and evaluating an agent on it needs.
+pub trait Task: Env + Sized + 'static {
+    /// The task's `[agent.<table>]` settings, stored in an agent's `task.json`.
+    type Config: Clone + Debug + Default + Serialize + DeserializeOwned + Send + Sync + 'static;
+    /// What is prepared once (map, layouts, renderers) and shared by every environment.
+    type Setup: Debug + Send + Sync + 'static;
     /// The figures of one episode (outcome, return, the task's metrics).
     type Summary: TaskSummary;
+    /// One evaluation condition: a traffic level, a route split, an obstacle scenario, ...
+    type Condition: Clone + Debug + Send + Sync;
+
+    /// The task's entry in the registry.
+    const ID: TaskId;
+
+    /// Prepares the task on `map` (None for a task that makes its own road), with the
+    /// observer that draws a camera view's layers (see [`Task::camera_view`]).
+    fn setup(
+        map: Option<Arc<Map>>,
+        config: Self::Config,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self::Setup>, SimError>;
+
+    /// The map the task drives on.
+    fn map(setup: &Self::Setup) -> &Map;
+
+    /// The camera table of `config` when it asks for `view = "camera-segmentation"`: what
+    /// the observer given to [`Task::setup`] is built from. None by default (no camera view).
+    fn camera_view(_config: &Self::Config) -> Option<&CameraViewConfig> {
+        None
+    }
+
+    /// The camera table of `config`, to change in place (e.g. its segmenter folder).
+    fn camera_mut(_config: &mut Self::Config) -> Option<&mut CameraViewConfig> {
+        None
+    }
+
+    /// The task deciding every `steps` world steps on frames stacked as with `config`; None
+    /// when the task does not hold its actions over world steps.
+    fn deciding_every(_config: &Self::Config, _steps: usize) -> Option<Self::Config> {
+        None
+    }
+
+    /// One environment of a training run at `traffic`.
+    fn training_env(setup: &Arc<Self::Setup>, traffic: TrafficLevel) -> Self;
+
+    /// One environment under `condition`.
+    fn env(setup: &Arc<Self::Setup>, condition: &Self::Condition) -> Self;
+
+    /// The evaluation conditions `choice` asks for (its empty lists: the task's defaults).
+    fn conditions(choice: &ConditionChoice) -> Vec<Self::Condition>;
+
+    /// What tables and reports call `condition`.
+    fn condition_name(condition: &Self::Condition) -> String;
+
+    /// The conditions a training run at `traffic` validates its checkpoints on, by name;
+    /// never conditions held out for evaluation.
+    fn validation_conditions(traffic: TrafficLevel) -> Vec<(String, Self::Condition)>;
+
+    /// The condition of the greedy episodes a training run at `traffic` records.
+    fn recorded_condition(traffic: TrafficLevel) -> Self::Condition;
+
+    /// The condition of the greedy episodes an evaluation of `conditions` records: the
+    /// first.
+    fn recorded_eval_condition(conditions: &[Self::Condition]) -> Self::Condition {
+        conditions
+            .first()
+            .cloned()
+            .unwrap_or_else(|| Self::recorded_condition(TrafficLevel::Medium))
+    }
+
+    /// The files of an evaluation: by default a table of [`crate::eval::TaskResult`]s per
+    /// condition.
+    fn eval_report(
+        header: &EvalHeader,
+        evaluation: &Evaluation<Self>,
+    ) -> Result<EvalReport, SimError> {
+        crate::eval::conditions_report(header, evaluation)
+    }
 
     /// The figures of the current (normally just finished) episode.
     fn summary(&self) -> Self::Summary;
@@ -50,6 +169,44 @@ pub trait Task: Env + Sized {
 
     /// The ego's path so far in this episode.
     fn trajectory(&self) -> &[Point];
+
+    /// Turns drawing the layers on or off (off: observations carry empty layers; the
+    /// episodes themselves do not change).
+    fn set_rendering(&mut self, _on: bool) {}
+
+    /// The newest frame of layers the recording shows of an episode, if any.
+    fn recorded_layers(&self) -> Option<LayerFrame<'_>> {
+        None
+    }
+}
+
+/// The evaluation conditions asked for (`agent eval --traffic` and `--aggressiveness`);
+/// empty lists ask for the task's defaults, and a task reads only what it has conditions of.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ConditionChoice {
+    pub traffic: Vec<TrafficLevel>,
+    pub aggressiveness: Vec<f64>,
+}
+
+impl ConditionChoice {
+    /// The traffic levels asked for, or every level.
+    pub fn traffic_levels(&self) -> Vec<TrafficLevel> {
+        if self.traffic.is_empty() {
+            TrafficLevel::ALL.to_vec()
+        } else {
+            self.traffic.clone()
+        }
+    }
+}
+
+/// One frame of bird's-eye layers, as the recording logs it.
+#[derive(Debug, Clone, Copy)]
+pub struct LayerFrame<'a> {
+    /// `[layer, row, column]`.
+    pub layers: &'a [u8],
+    pub names: &'a [crate::render::Layer],
+    pub width: usize,
+    pub height: usize,
 }
 
 /// What an evaluation table reads from an episode's summary.
@@ -66,9 +223,7 @@ pub trait TaskSummary: Clone + Send + Serialize {
 pub type PolicyFactory<E> = Box<dyn Fn() -> Box<dyn TaskPolicy<E>> + Send + Sync>;
 
 /// The [`PolicyFactory`] of each constant action of `E`.
-pub fn constant_baselines<E: Task + 'static>(
-    action_names: &[&str],
-) -> Vec<(String, PolicyFactory<E>)> {
+pub fn constant_baselines<E: Task>(action_names: &[&str]) -> Vec<(String, PolicyFactory<E>)> {
     action_names
         .iter()
         .enumerate()
@@ -85,11 +240,43 @@ pub fn constant_baselines<E: Task + 'static>(
 pub trait TaskPolicy<E>: Send {
     /// One action per environment, in order, into `actions` (cleared first).
     fn act(&mut self, envs: &[&E], observations: &[&Observation], actions: &mut Vec<usize>);
+
+    /// As [`TaskPolicy::act`], told each environment's place in the policy's batch (stable
+    /// over its episode): what the harness calls. By default, `act`.
+    fn act_in_slots(
+        &mut self,
+        _slots: &[usize],
+        envs: &[&E],
+        observations: &[&Observation],
+        actions: &mut Vec<usize>,
+    ) {
+        self.act(envs, observations, actions);
+    }
+
+    /// Whether the policy reads observations; when it does not, the harness turns the
+    /// environments' rendering off (the episodes are the same either way).
+    fn needs_observation(&self) -> bool {
+        true
+    }
 }
 
 impl<E> TaskPolicy<E> for Box<dyn TaskPolicy<E>> {
     fn act(&mut self, envs: &[&E], observations: &[&Observation], actions: &mut Vec<usize>) {
         (**self).act(envs, observations, actions);
+    }
+
+    fn act_in_slots(
+        &mut self,
+        slots: &[usize],
+        envs: &[&E],
+        observations: &[&Observation],
+        actions: &mut Vec<usize>,
+    ) {
+        (**self).act_in_slots(slots, envs, observations, actions);
+    }
+
+    fn needs_observation(&self) -> bool {
+        (**self).needs_observation()
     }
 }
 
@@ -104,170 +291,44 @@ impl<E> TaskPolicy<E> for ConstantAction {
     }
 }
 
-/// Runs one episode per seed, `lockstep` episodes side by side per policy instance, in
-/// parallel; summaries come back in seed order, the same whatever the thread count.
-pub fn run_episodes<E, P, FE, FP>(
-    make_env: FE,
-    make_policy: FP,
-    seeds: &[u64],
-    lockstep: usize,
-) -> Vec<E::Summary>
-where
-    E: Task,
-    P: TaskPolicy<E>,
-    FE: Fn() -> E + Sync,
-    FP: Fn() -> P + Sync,
-{
-    let chunks: Vec<&[u64]> = seeds.chunks(lockstep.max(1)).collect();
-    chunks
-        .par_iter()
-        .flat_map_iter(|chunk| {
-            let mut policy = make_policy();
-            let mut envs: Vec<E> = chunk.iter().map(|_| make_env()).collect();
-            let mut observations: Vec<Observation> = envs
-                .iter_mut()
-                .zip(chunk.iter())
-                .map(|(env, &seed)| env.reset(seed))
-                .collect();
-            let mut running = vec![true; envs.len()];
-            let mut actions = Vec::with_capacity(envs.len());
-            while running.iter().any(|r| *r) {
-                let live: Vec<usize> = (0..envs.len()).filter(|&i| running[i]).collect();
-                let env_refs: Vec<&E> = live.iter().map(|&i| &envs[i]).collect();
-                let obs_refs: Vec<&Observation> = live.iter().map(|&i| &observations[i]).collect();
-                policy.act(&env_refs, &obs_refs, &mut actions);
-                for (&i, &action) in live.iter().zip(actions.iter()) {
-                    let step = envs[i].step(action);
-                    observations[i] = step.observation;
-                    if step.outcome.is_some() {
-                        running[i] = false;
-                    }
-                }
-            }
-            envs.iter().map(Task::summary).collect::<Vec<_>>()
-        })
-        .collect()
-}
-
-/// Outcome fractions and metric means of one policy's episodes.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct TaskResult {
-    pub episodes: usize,
-    pub reaches: f64,
-    pub crashes: f64,
-    pub off_roads: f64,
-    pub time_overs: f64,
-    pub mean_return: f64,
-    /// Means over the episodes that give the metric (NaN ones left out), by name.
-    pub metrics: Vec<(String, Option<f64>)>,
-}
-
-impl TaskResult {
-    pub fn of<S: TaskSummary>(episodes: &[S]) -> TaskResult {
-        let n = episodes.len();
-        let frac = |o: Outcome| {
-            episodes.iter().filter(|e| e.outcome() == o).count() as f64 / n.max(1) as f64
-        };
-        let per_episode: Vec<Vec<(&'static str, f64)>> =
-            episodes.iter().map(TaskSummary::metrics).collect();
-        let names: Vec<&'static str> = per_episode
-            .first()
-            .map(|m| m.iter().map(|(name, _)| *name).collect())
-            .unwrap_or_default();
-        let metrics = names
-            .iter()
-            .enumerate()
-            .map(|(k, name)| {
-                let values: Vec<f64> = per_episode
-                    .iter()
-                    .filter_map(|m| m.get(k).map(|(_, v)| *v))
-                    .filter(|v| !v.is_nan())
-                    .collect();
-                let mean =
-                    (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
-                ((*name).to_owned(), mean)
-            })
-            .collect();
-        TaskResult {
-            episodes: n,
-            reaches: frac(Outcome::Reached),
-            crashes: frac(Outcome::Crashed),
-            off_roads: frac(Outcome::OffRoad),
-            time_overs: frac(Outcome::TimeOver),
-            mean_return: episodes
-                .iter()
-                .map(TaskSummary::episode_return)
-                .sum::<f64>()
-                / n.max(1) as f64,
-            metrics,
-        }
+/// Fails with the first of `values` (settings by name) that is not a positive number.
+pub(crate) fn check_positive(values: &[(&str, f64)]) -> Result<(), SimError> {
+    match values.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        Some((name, v)) => Err(SimError::Config(format!("{name} = {v} must be positive"))),
+        None => Ok(()),
     }
 }
 
-/// A markdown table of policies' results: outcome fractions, then the task's metrics.
-pub fn task_table(rows: &[(String, TaskResult)]) -> String {
-    let metric_names: Vec<&str> = rows
-        .first()
-        .map(|(_, r)| r.metrics.iter().map(|(n, _)| n.as_str()).collect())
-        .unwrap_or_default();
-    let mut out = String::from(
-        "| policy | episodes | reached | crashed | off road | time over | mean return |",
-    );
-    for name in &metric_names {
-        out.push_str(&format!(" {name} |"));
-    }
-    out.push_str("\n|");
-    // Seven fixed columns (policy to mean return), then the metrics.
-    out.push_str(&" --- |".repeat(7 + metric_names.len()));
-    out.push('\n');
-    for (policy, r) in rows {
-        out.push_str(&format!(
-            "| {policy} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} |",
-            r.episodes,
-            100.0 * r.reaches,
-            100.0 * r.crashes,
-            100.0 * r.off_roads,
-            100.0 * r.time_overs,
-            r.mean_return,
-        ));
-        for (_, value) in &r.metrics {
-            match value {
-                Some(v) => out.push_str(&format!(" {v:.2} |")),
-                None => out.push_str(" - |"),
-            }
-        }
-        out.push('\n');
-    }
-    out
+/// The constant baselines of `action_names`, then the task's rule `R`, named `rule_name`.
+pub fn baselines_with_rule<E: Task, R: TaskPolicy<E> + Default + 'static>(
+    action_names: &[&str],
+    rule_name: &str,
+) -> Vec<(String, PolicyFactory<E>)> {
+    let mut all = constant_baselines::<E>(action_names);
+    let rule: PolicyFactory<E> = Box::new(|| Box::new(R::default()));
+    all.push((rule_name.to_owned(), rule));
+    all
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
-    #[derive(Clone, Serialize)]
-    struct One(Outcome);
-
-    impl TaskSummary for One {
-        fn outcome(&self) -> Outcome {
-            self.0
-        }
-        fn episode_return(&self) -> f64 {
-            1.0
-        }
-        fn metrics(&self) -> Vec<(&'static str, f64)> {
-            vec![("a m", 1.0), ("b s", f64::NAN)]
-        }
-    }
-
     #[test]
-    fn every_table_row_has_the_header_s_columns() {
-        let result = TaskResult::of(&[One(Outcome::Reached), One(Outcome::Crashed)]);
-        assert_eq!(result.metrics[0].1, Some(1.0));
-        assert_eq!(result.metrics[1].1, None);
-        let table = task_table(&[("p".into(), result)]);
-        let columns: Vec<usize> = table.lines().map(|l| l.matches('|').count()).collect();
-        assert_eq!(columns.len(), 3);
-        assert!(columns.iter().all(|&c| c == columns[0]), "{table}");
+    fn action_names_are_their_serde_names_in_index_order() {
+        fn check<A: Serialize + Copy>(all: &[A], names: &[&str], index: impl Fn(A) -> usize) {
+            assert_eq!(all.len(), names.len());
+            for (i, (&action, name)) in all.iter().zip(names).enumerate() {
+                assert_eq!(serde_json::to_value(action).unwrap(), *name);
+                assert_eq!(index(action), i);
+            }
+        }
+        check(&Action::ALL, &Action::NAMES, |a| a as usize);
+        check(&SteerAction::ALL, &SteerAction::NAMES, |a| a as usize);
+        let obstacle = obstacle::Action::ALL;
+        check(&obstacle, &obstacle::Action::NAMES, |a| a as usize);
+        assert_eq!(Action::from_index(2), Some(Action::Caution));
+        assert_eq!(SteerAction::from_index(3), None);
     }
 }

@@ -54,31 +54,22 @@ use serde::{Deserialize, Serialize};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
 use crate::kinematics::{Bicycle, advance_speed, direction};
+use crate::observer::SceneObserver;
 use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
 use crate::synthetic::straight_road;
-use crate::tasks::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
+use crate::tasks::{
+    ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
+    baselines_with_rule, check_positive,
+};
+use crate::world::TrafficLevel;
 
-/// The four actions, by index.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Action {
-    Straight = 0,
-    Brake = 1,
-    SteerLeft = 2,
-    SteerRight = 3,
-}
-
-impl Action {
-    pub const ALL: [Action; 4] = [
-        Action::Straight,
-        Action::Brake,
-        Action::SteerLeft,
-        Action::SteerRight,
-    ];
-    pub const NAMES: [&'static str; 4] = ["straight", "brake", "steer_left", "steer_right"];
-
-    pub fn from_index(i: usize) -> Option<Action> {
-        Action::ALL.get(i).copied()
+actions! {
+    /// The four actions, by index.
+    pub enum Action {
+        Straight = 0 => "straight",
+        Brake = 1 => "brake",
+        SteerLeft = 2 => "steer_left",
+        SteerRight = 3 => "steer_right",
     }
 }
 
@@ -251,7 +242,7 @@ impl Default for ObstacleConfig {
 
 impl ObstacleConfig {
     fn validate(&self) -> Result<(), SimError> {
-        let positive = [
+        check_positive(&[
             ("lane_width_m", self.lane_width_m),
             ("destination_m", self.destination_m),
             ("start_speed_kmh", self.start_speed_kmh),
@@ -273,12 +264,7 @@ impl ObstacleConfig {
                 self.lidar.window_longitudinal_m,
             ),
             ("normalised.scale", self.normalised.scale),
-        ];
-        for (name, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(SimError::Config(format!("{name} = {v} must be positive")));
-            }
-        }
+        ])?;
         let non_negative = [
             ("stop_speed_mps", self.stop_speed_mps),
             ("static_lateral_m", self.static_lateral_m),
@@ -502,14 +488,12 @@ pub struct ObstacleAvoidance {
     /// The return at the previous decision (for the motion inputs).
     previous_lidar: Option<LidarHit>,
     time_s: f64,
-    steps: usize,
-    episode_return: f64,
+    /// Decisions, return, outcome and the ego's positions (one per decision).
+    episode: Episode,
     speed_sum: f64,
     stopping_gap_m: Option<f64>,
     stop_bonus_given: bool,
     min_gap_m: f64,
-    outcome: Option<Outcome>,
-    trajectory: Vec<Point>,
 }
 
 impl ObstacleAvoidance {
@@ -528,14 +512,11 @@ impl ObstacleAvoidance {
             lidar: None,
             previous_lidar: None,
             time_s: 0.0,
-            steps: 0,
-            episode_return: 0.0,
+            episode: Episode::default(),
             speed_sum: 0.0,
             stopping_gap_m: None,
             stop_bonus_given: false,
             min_gap_m: f64::INFINITY,
-            outcome: None,
-            trajectory: Vec::new(),
         }
     }
 
@@ -572,7 +553,7 @@ impl ObstacleAvoidance {
     }
 
     pub fn outcome(&self) -> Option<Outcome> {
-        self.outcome
+        self.episode.outcome
     }
 
     fn ego_actor(&self) -> Actor {
@@ -694,7 +675,7 @@ impl ObstacleAvoidance {
         let farthest = c.destination_m;
         // A crash or leaving the road counts as being at the farthest point (the study's
         // worst main reward); otherwise where the ego is.
-        let after = match self.outcome {
+        let after = match self.episode.outcome {
             Some(Outcome::Crashed | Outcome::OffRoad) => farthest,
             _ => self.distance_to_destination().max(0.0),
         };
@@ -708,7 +689,7 @@ impl ObstacleAvoidance {
         };
         match c.reward {
             RewardKind::Study => {
-                let main = if self.outcome.is_some() {
+                let main = if self.episode.ended() {
                     study_main_reward(after, farthest)
                 } else {
                     0.0
@@ -721,7 +702,7 @@ impl ObstacleAvoidance {
                 let danger = x.map_or(0.0, |x| {
                     c.normalised.danger_per_step * (lidar_penalty(x) - lidar_penalty(range)) / span
                 });
-                let reach = if self.outcome == Some(Outcome::Reached) {
+                let reach = if self.episode.outcome == Some(Outcome::Reached) {
                     c.normalised.reach_bonus
                 } else {
                     0.0
@@ -808,8 +789,6 @@ impl Env for ObstacleAvoidance {
         self.ego = Bicycle::at_centre(Point::new(0.0, lane_y), 0.0, c.wheelbase_m);
         self.speed_mps = c.cruise_speed_mps();
         self.time_s = 0.0;
-        self.steps = 0;
-        self.episode_return = 0.0;
         self.speed_sum = 0.0;
         self.stopping_gap_m = None;
         self.stop_bonus_given = false;
@@ -818,21 +797,16 @@ impl Env for ObstacleAvoidance {
             .obstacle
             .as_ref()
             .map_or(f64::INFINITY, |(_, a)| ego_box.distance(&a.footprint()));
-        self.outcome = None;
-        self.trajectory.clear();
-        self.trajectory.push(self.ego.centre());
+        self.episode.reset(Some(self.ego.centre()));
         self.lidar = None;
         self.rescan();
         self.observation()
     }
 
     fn step(&mut self, action: usize) -> Step {
-        if self.outcome.is_some() || self.obstacle.is_none() {
-            return Step {
-                observation: self.observation(),
-                reward: 0.0,
-                outcome: Some(self.outcome.unwrap_or(Outcome::TimeOver)),
-            };
+        if self.episode.ended() || self.obstacle.is_none() {
+            // After the end, or never reset.
+            return self.episode.finished_step(self.observation());
         }
         let action = Action::from_index(action).unwrap_or(Action::Brake);
         let before = self.distance_to_destination().max(0.0);
@@ -847,49 +821,98 @@ impl Env for ObstacleAvoidance {
         if outcome.is_none() && self.time_s >= self.config.time_limit_s - 1e-9 {
             outcome = Some(Outcome::TimeOver);
         }
-        self.outcome = outcome;
-        self.steps += 1;
+        // The reward reads how the episode ended.
+        self.episode.outcome = outcome;
+        self.episode.steps += 1;
         self.speed_sum += self.speed_mps;
-        self.trajectory.push(self.ego.centre());
+        self.episode.trajectory.push(self.ego.centre());
         self.rescan();
         let stopped_now = !was_stopped && self.speed_mps <= self.config.stop_speed_mps;
         let reward = self.reward(before, stopped_now);
-        self.episode_return += reward;
-        Step {
-            observation: self.observation(),
-            reward: reward as f32,
-            outcome,
-        }
+        self.episode.step(self.observation(), reward, outcome)
     }
 }
 
+const STATIC_OBSTACLE: &str = "static obstacle";
+const CROSSING_OBSTACLE: &str = "crossing obstacle";
+
 impl Task for ObstacleAvoidance {
+    type Config = ObstacleConfig;
+    type Setup = ObstacleSetup;
     type Summary = ObstacleSummary;
+    /// The obstacles the episodes get.
+    type Condition = Scenario;
+
+    const ID: TaskId = TaskId::ObstacleAvoidance;
+
+    /// On its own straight road: `map` is not used.
+    fn setup(
+        _: Option<Arc<Map>>,
+        config: ObstacleConfig,
+        _: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<ObstacleSetup>, SimError> {
+        ObstacleSetup::new(config)
+    }
+
+    fn map(setup: &ObstacleSetup) -> &Map {
+        setup.map()
+    }
+
+    /// The config's scenario, whatever the traffic (there is none).
+    fn training_env(setup: &Arc<ObstacleSetup>, _: TrafficLevel) -> Self {
+        ObstacleAvoidance::new(Arc::clone(setup))
+    }
+
+    fn env(setup: &Arc<ObstacleSetup>, scenario: &Scenario) -> Self {
+        let mut env = ObstacleAvoidance::new(Arc::clone(setup));
+        env.set_scenario(*scenario);
+        env
+    }
+
+    /// Each scenario on its own: static, then crossing.
+    fn conditions(_: &ConditionChoice) -> Vec<Scenario> {
+        vec![Scenario::Static, Scenario::Crossing]
+    }
+
+    fn condition_name(scenario: &Scenario) -> String {
+        match scenario {
+            Scenario::Static => STATIC_OBSTACLE,
+            Scenario::Crossing => CROSSING_OBSTACLE,
+            Scenario::Mixed => "mixed obstacles",
+        }
+        .to_owned()
+    }
+
+    /// Each scenario on its own, as evaluated.
+    fn validation_conditions(_: TrafficLevel) -> Vec<(String, Scenario)> {
+        Self::conditions(&ConditionChoice::default())
+            .into_iter()
+            .map(|scenario| (Self::condition_name(&scenario), scenario))
+            .collect()
+    }
+
+    /// Mixed scenarios: the recorded episodes show both kinds of obstacle.
+    fn recorded_condition(_: TrafficLevel) -> Scenario {
+        Scenario::Mixed
+    }
 
     fn summary(&self) -> ObstacleSummary {
         ObstacleSummary {
-            outcome: self.outcome.unwrap_or(Outcome::TimeOver),
+            outcome: self.episode.final_outcome(),
             kind: self
                 .obstacle
                 .as_ref()
                 .map_or(ObstacleKind::Parked, |(k, _)| *k),
-            steps: self.steps,
-            episode_return: self.episode_return,
-            mean_speed_mps: if self.steps > 0 {
-                self.speed_sum / self.steps as f64
-            } else {
-                0.0
-            },
+            steps: self.episode.steps,
+            episode_return: self.episode.episode_return,
+            mean_speed_mps: self.episode.mean(self.speed_sum),
             stopping_gap_m: self.stopping_gap_m,
             min_gap_m: self.min_gap_m,
         }
     }
 
     fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
-        let mut all = constant_baselines::<Self>(&Action::NAMES);
-        let rule: PolicyFactory<Self> = Box::new(|| Box::new(PassOrYield));
-        all.push(("rule: pass or yield".to_owned(), rule));
-        all
+        baselines_with_rule::<Self, PassOrYield>(&Action::NAMES, "rule: pass or yield")
     }
 
     fn scene(&self) -> Option<Scene<'_>> {
@@ -904,7 +927,7 @@ impl Task for ObstacleAvoidance {
     }
 
     fn trajectory(&self) -> &[Point] {
-        &self.trajectory
+        &self.episode.trajectory
     }
 }
 
@@ -987,7 +1010,7 @@ impl TaskPolicy<ObstacleAvoidance> for PassOrYield {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tasks::{TaskResult, run_episodes};
+    use crate::eval::{TaskResult, run_episodes};
 
     fn env(scenario: Scenario) -> ObstacleAvoidance {
         let setup = ObstacleSetup::new(ObstacleConfig {

@@ -42,39 +42,31 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::roundabouts::{EgoView, RoundaboutSet, ego_scene};
-use super::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
+use super::roundabouts::{EgoView, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
+use super::{
+    ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
+    baselines_with_rule, check_positive,
+};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
 use crate::kinematics::Bicycle;
 use crate::observer::{CameraViewConfig, SceneObserver, View, checked_observer};
 use crate::path::wrap_angle;
 use crate::render::{BevConfig, BevRenderer};
-use crate::roundabout::{LayoutConfig, RingRoute, RoundaboutLayout};
+use crate::roundabout::{LayoutConfig, RingRoute};
 use crate::scene::Scene;
 use crate::world::{EgoCommand, EgoConfig, TrafficConfig, TrafficLevel, World};
 
-/// The three actions, by index.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SteerAction {
-    Forward = 0,
-    ForwardLeft = 1,
-    ForwardRight = 2,
+actions! {
+    /// The three actions, by index.
+    pub enum SteerAction {
+        Forward = 0 => "forward",
+        ForwardLeft = 1 => "forward_left",
+        ForwardRight = 2 => "forward_right",
+    }
 }
 
 impl SteerAction {
-    pub const ALL: [SteerAction; 3] = [
-        SteerAction::Forward,
-        SteerAction::ForwardLeft,
-        SteerAction::ForwardRight,
-    ];
-    pub const NAMES: [&'static str; 3] = ["forward", "forward_left", "forward_right"];
-
-    pub fn from_index(i: usize) -> Option<SteerAction> {
-        SteerAction::ALL.get(i).copied()
-    }
-
     /// The wheel angle the action turns towards, for actions at `±steer_rad`.
     pub fn target_steer(self, steer_rad: f64) -> f64 {
         match self {
@@ -216,7 +208,7 @@ fn validate(c: &RingDrivingConfig) -> Result<(), SimError> {
         }
         View::CameraSegmentation => c.camera_view()?.validate()?,
     }
-    let positive = [
+    check_positive(&[
         ("traffic.step_s", c.traffic.step_s),
         ("episode_s", c.episode_s),
         ("steer_rad", c.steer_rad),
@@ -225,12 +217,7 @@ fn validate(c: &RingDrivingConfig) -> Result<(), SimError> {
         ("speed_scale_mps", c.speed_scale_mps),
         ("ego.max_steer_rad", c.ego.max_steer_rad),
         ("ego.wheelbase_m", c.ego.wheelbase_m),
-    ];
-    for (name, v) in positive {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(SimError::Config(format!("{name} = {v} must be positive")));
-        }
-    }
+    ])?;
     if !(0.0..=1.0).contains(&c.ring_start_probability) {
         return Err(SimError::Config(format!(
             "ring_start_probability = {} must lie in [0, 1]",
@@ -280,13 +267,7 @@ impl RingDrivingConfig {
 }
 
 /// What is prepared once per map and shared by every environment on it (read-only).
-#[derive(Debug)]
-pub struct RingDrivingSetup {
-    config: RingDrivingConfig,
-    roundabouts: RoundaboutSet,
-    /// Draws the layers of a camera view.
-    observer: Option<Arc<dyn SceneObserver>>,
-}
+pub type RingDrivingSetup = RoundaboutSetup<RingDrivingConfig>;
 
 impl RingDrivingSetup {
     /// Prepares every roundabout of `map` that has a route through its ring. Fails when
@@ -310,28 +291,21 @@ impl RingDrivingSetup {
             View::Bev | View::Scalars => None,
         };
         let observer = checked_observer("agent.roundabout_driving", config.view, camera, observer)?;
-        let roundabouts = RoundaboutSet::new(map, &config.layout, &config.observation)?;
-        Ok(Arc::new(RingDrivingSetup {
-            config,
-            roundabouts,
-            observer,
-        }))
+        Self::prepare(map, config, observer)
+    }
+}
+
+impl RoundaboutTaskConfig for RingDrivingConfig {
+    fn layout(&self) -> &LayoutConfig {
+        &self.layout
     }
 
-    pub fn map(&self) -> &Arc<Map> {
-        self.roundabouts.map()
+    fn bev(&self) -> &BevConfig {
+        &self.observation
     }
 
-    pub fn config(&self) -> &RingDrivingConfig {
-        &self.config
-    }
-
-    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
-        self.roundabouts.layouts()
-    }
-
-    pub fn observation_spec(&self) -> ObservationSpec {
-        self.config.observation_spec()
+    fn observation_spec(&self) -> ObservationSpec {
+        RingDrivingConfig::observation_spec(self)
     }
 }
 
@@ -384,14 +358,12 @@ pub struct RingDriving {
     world: Option<World>,
     /// The front wheels' angle, rad (left positive).
     steer: f64,
-    steps: usize,
+    /// World steps, return, outcome and the ego's positions.
+    episode: Episode,
     start_time_s: f64,
-    episode_return: f64,
     angle_sum_deg: f64,
     distance_sum_m: f64,
     speed_sum_mps: f64,
-    outcome: Option<Outcome>,
-    trajectory: Vec<Point>,
     view: EgoView,
 }
 
@@ -408,22 +380,13 @@ impl RingDriving {
             roundabout: 0,
             world: None,
             steer: 0.0,
-            steps: 0,
+            episode: Episode::default(),
             start_time_s: 0.0,
-            episode_return: 0.0,
             angle_sum_deg: 0.0,
             distance_sum_m: 0.0,
             speed_sum_mps: 0.0,
-            outcome: None,
-            trajectory: Vec::new(),
             view,
         }
-    }
-
-    /// Turns drawing the layers (bird's-eye or camera) on or off (off: observations carry empty
-    /// layers; the episodes themselves do not change).
-    pub fn set_rendering(&mut self, on: bool) {
-        self.view.set_rendering(on);
     }
 
     /// Sets the traffic level of the following episodes.
@@ -441,7 +404,7 @@ impl RingDriving {
 
     /// The episode's outcome once it has ended.
     pub fn outcome(&self) -> Option<Outcome> {
-        self.outcome
+        self.episode.outcome
     }
 
     /// The front wheels' angle, rad (left positive).
@@ -553,11 +516,11 @@ impl RingDriving {
                 deviation_from(route, me.position, me.heading, me.s),
             )
         };
-        self.steps += 1;
+        self.episode.steps += 1;
         self.speed_sum_mps += speed;
         self.angle_sum_deg += deviation.angle_deg;
         self.distance_sum_m += deviation.distance_m;
-        self.trajectory.push(position);
+        self.episode.trajectory.push(position);
         let c = &self.config;
         let r = c.reward;
         let layout = world.layout();
@@ -650,32 +613,25 @@ impl Env for RingDriving {
             let limit = self.action_steer();
             s.clamp(-limit, limit)
         });
-        self.trajectory.clear();
-        if let Some(ego) = world.ego_index() {
-            self.trajectory.push(world.vehicles()[ego].position);
-        }
+        self.episode
+            .reset(world.ego_index().map(|ego| world.vehicles()[ego].position));
         self.world = Some(world);
-        self.steps = 0;
-        self.episode_return = 0.0;
         self.angle_sum_deg = 0.0;
         self.distance_sum_m = 0.0;
         self.speed_sum_mps = 0.0;
-        self.outcome = None;
         self.render(true);
         self.observation()
     }
 
     fn step(&mut self, action: usize) -> Step {
-        let finished = Step {
-            observation: self.observation(),
-            reward: 0.0,
-            outcome: Some(self.outcome.unwrap_or(Outcome::TimeOver)),
+        let world = if self.episode.ended() {
+            None
+        } else {
+            self.world.take()
         };
-        if self.outcome.is_some() {
-            return finished;
-        }
-        let Some(mut world) = self.world.take() else {
-            return finished; // never reset
+        let Some(mut world) = world else {
+            // After the end, or never reset.
+            return self.episode.finished_step(self.observation());
         };
         let action = SteerAction::from_index(action).unwrap_or(SteerAction::Forward);
         self.steer = self.next_steer(action);
@@ -685,38 +641,91 @@ impl Env for RingDriving {
         });
         let (reward, outcome) = self.resolve(&mut world);
         self.world = Some(world);
-        self.outcome = outcome;
-        self.episode_return += reward;
         self.render(false);
-        Step {
-            observation: self.observation(),
-            reward: reward as f32,
-            outcome,
-        }
+        self.episode.step(self.observation(), reward, outcome)
     }
 }
 
 impl Task for RingDriving {
+    type Config = RingDrivingConfig;
+    type Setup = RingDrivingSetup;
     type Summary = RingDrivingSummary;
+    /// The traffic level.
+    type Condition = TrafficLevel;
+
+    const ID: TaskId = TaskId::RoundaboutDriving;
+
+    fn setup(
+        map: Option<Arc<Map>>,
+        config: RingDrivingConfig,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<RingDrivingSetup>, SimError> {
+        let map = map.ok_or_else(|| SimError::Map("roundabout driving needs a map".into()))?;
+        RingDrivingSetup::with_observer(map, config, observer)
+    }
+
+    fn map(setup: &RingDrivingSetup) -> &Map {
+        setup.map()
+    }
+
+    fn camera_view(config: &RingDrivingConfig) -> Option<&CameraViewConfig> {
+        match config.view {
+            View::CameraSegmentation => config.camera.as_ref(),
+            View::Bev | View::Scalars => None,
+        }
+    }
+
+    fn camera_mut(config: &mut RingDrivingConfig) -> Option<&mut CameraViewConfig> {
+        config.camera.as_mut()
+    }
+
+    fn training_env(setup: &Arc<RingDrivingSetup>, traffic: TrafficLevel) -> Self {
+        let mut env = RingDriving::new(Arc::clone(setup));
+        env.set_traffic(traffic);
+        env
+    }
+
+    fn env(setup: &Arc<RingDrivingSetup>, traffic: &TrafficLevel) -> Self {
+        Self::training_env(setup, *traffic)
+    }
+
+    /// One condition per traffic level (by default low, medium and high).
+    fn conditions(choice: &ConditionChoice) -> Vec<TrafficLevel> {
+        choice.traffic_levels()
+    }
+
+    fn condition_name(traffic: &TrafficLevel) -> String {
+        format!("traffic {}", traffic.name())
+    }
+
+    /// At the training traffic.
+    fn validation_conditions(traffic: TrafficLevel) -> Vec<(String, TrafficLevel)> {
+        vec![(Self::condition_name(&traffic), traffic)]
+    }
+
+    fn recorded_condition(traffic: TrafficLevel) -> TrafficLevel {
+        traffic
+    }
 
     fn summary(&self) -> RingDrivingSummary {
-        let n = self.steps.max(1) as f64;
+        let steps = self.episode.steps;
+        let n = steps.max(1) as f64;
         RingDrivingSummary {
-            outcome: self.outcome.unwrap_or(Outcome::TimeOver),
-            steps: self.steps,
-            episode_return: self.episode_return,
+            outcome: self.episode.final_outcome(),
+            steps,
+            episode_return: self.episode.episode_return,
             mean_angle_deviation_deg: self.angle_sum_deg / n,
             mean_distance_deviation_m: self.distance_sum_m / n,
-            episode_length_s: self.steps as f64 * self.config.traffic.step_s,
+            episode_length_s: steps as f64 * self.config.traffic.step_s,
             mean_speed_kmh: self.speed_sum_mps / n * 3.6,
         }
     }
 
     fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
-        let mut out = constant_baselines::<RingDriving>(&SteerAction::NAMES);
-        let rule: PolicyFactory<Self> = Box::new(|| Box::new(PursuitRule));
-        out.push(("rule: pure pursuit, quantised".into(), rule));
-        out
+        baselines_with_rule::<Self, PursuitRule>(
+            &SteerAction::NAMES,
+            "rule: pure pursuit, quantised",
+        )
     }
 
     fn scene(&self) -> Option<Scene<'_>> {
@@ -729,7 +738,12 @@ impl Task for RingDriving {
     }
 
     fn trajectory(&self) -> &[Point] {
-        &self.trajectory
+        &self.episode.trajectory
+    }
+
+    /// Turns drawing the layers (bird's-eye or camera) on or off.
+    fn set_rendering(&mut self, on: bool) {
+        self.view.set_rendering(on);
     }
 }
 
@@ -750,7 +764,8 @@ impl TaskPolicy<RingDriving> for PursuitRule {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::tasks::{ConstantAction, TaskResult, run_episodes};
+    use crate::eval::{TaskResult, run_episodes};
+    use crate::tasks::ConstantAction;
     use crate::test_maps;
 
     /// Montlake without other traffic: what steering alone does.

@@ -1,12 +1,14 @@
-//! What the tasks on a map's roundabouts share: the roundabouts prepared once per map
-//! (routes and bird's-eye renderer of each), the scene seen from the ego, and the ego's
-//! stacked bird's-eye frames.
+//! What the tasks on a map's roundabouts share: their setup ([`RoundaboutSetup`]: the
+//! roundabouts prepared once per map, routes and bird's-eye renderer of each), the scene
+//! seen from the ego, and the ego's stacked bird's-eye frames.
 
+use std::fmt::Debug;
 use std::sync::Arc;
 
 use maps::Map;
 use rand::Rng;
 
+use crate::env::ObservationSpec;
 use crate::error::SimError;
 use crate::observer::SceneObserver;
 use crate::render::{BevConfig, BevRenderer, FrameStack};
@@ -16,6 +18,60 @@ use crate::world::World;
 
 /// Width of the navigable corridor along every route, m (a wide car).
 const ROUTE_CORRIDOR_M: f64 = 2.0;
+
+/// The settings a task on a map's roundabouts prepares its [`RoundaboutSetup`] from.
+pub trait RoundaboutTaskConfig: Debug {
+    /// How the routes through each roundabout are laid out.
+    fn layout(&self) -> &LayoutConfig;
+    /// The bird's-eye view (its raster also decides what is navigable).
+    fn bev(&self) -> &BevConfig;
+    /// The shape of the task's observations.
+    fn observation_spec(&self) -> ObservationSpec;
+}
+
+/// What a task on a map's roundabouts prepares once per map and shares with every
+/// environment on it (read-only): its settings, the roundabouts with a route through their
+/// ring, and the observer of a camera view.
+#[derive(Debug)]
+pub struct RoundaboutSetup<C> {
+    pub(crate) config: C,
+    pub(crate) roundabouts: RoundaboutSet,
+    /// Draws the layers of a camera view.
+    pub(crate) observer: Option<Arc<dyn SceneObserver>>,
+}
+
+impl<C: RoundaboutTaskConfig> RoundaboutSetup<C> {
+    /// Prepares every roundabout of `map` that has a route through its ring for `config`
+    /// (already validated, with its checked `observer`); fails when there is none.
+    pub(crate) fn prepare(
+        map: Arc<Map>,
+        config: C,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
+        let roundabouts = RoundaboutSet::new(map, config.layout(), config.bev())?;
+        Ok(Arc::new(RoundaboutSetup {
+            config,
+            roundabouts,
+            observer,
+        }))
+    }
+
+    pub fn map(&self) -> &Arc<Map> {
+        self.roundabouts.map()
+    }
+
+    pub fn config(&self) -> &C {
+        &self.config
+    }
+
+    pub fn layouts(&self) -> impl Iterator<Item = &Arc<RoundaboutLayout>> {
+        self.roundabouts.layouts()
+    }
+
+    pub fn observation_spec(&self) -> ObservationSpec {
+        self.config.observation_spec()
+    }
+}
 
 /// Every roundabout of a map that has a route from an entry through the ring to an exit,
 /// with the bird's-eye renderer of its region (read-only, shared by every environment).

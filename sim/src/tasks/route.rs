@@ -50,8 +50,11 @@ use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
 use crate::seed::derive_seed;
 use crate::tasks::ring_driving::SteerAction;
 use crate::tasks::roundabouts::EgoView;
-use crate::tasks::{PolicyFactory, Task, TaskPolicy, TaskSummary, constant_baselines};
-use crate::world::{Driver, DriverConfig, EgoConfig};
+use crate::tasks::{
+    ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
+    baselines_with_rule,
+};
+use crate::world::{Driver, DriverConfig, EgoConfig, TrafficLevel};
 
 /// Distance within which the nearest other vehicle is an input, m.
 const NEAR_M: f64 = 20.0;
@@ -478,13 +481,11 @@ pub struct RouteFollowing {
     others: Vec<Other>,
     time_s: f64,
     time_limit_s: f64,
-    steps: usize,
-    episode_return: f64,
+    /// Decisions, return, outcome and the ego's positions (one per decision).
+    episode: Episode,
     squared_error_sum: f64,
     in_lane_steps: usize,
     speed_sum: f64,
-    outcome: Option<Outcome>,
-    trajectory: Vec<Point>,
     /// The ego's stacked layers (None for `view = "scalars"`).
     view: Option<EgoView>,
 }
@@ -510,22 +511,11 @@ impl RouteFollowing {
             others: Vec::new(),
             time_s: 0.0,
             time_limit_s: 0.0,
-            steps: 0,
-            episode_return: 0.0,
+            episode: Episode::default(),
             squared_error_sum: 0.0,
             in_lane_steps: 0,
             speed_sum: 0.0,
-            outcome: None,
-            trajectory: Vec::new(),
             view,
-        }
-    }
-
-    /// Turns drawing the layers on or off (off: observations carry empty layers; the
-    /// episodes themselves do not change). Nothing to draw with `view = "scalars"`.
-    pub fn set_rendering(&mut self, on: bool) {
-        if let Some(view) = &mut self.view {
-            view.set_rendering(on);
         }
     }
 
@@ -681,13 +671,13 @@ impl RouteFollowing {
 
     fn summary_now(&self) -> RouteSummary {
         let length = self.route().path.length();
-        let steps = self.steps.max(1) as f64;
+        let steps = self.episode.steps.max(1) as f64;
         RouteSummary {
-            outcome: self.outcome.unwrap_or(Outcome::TimeOver),
-            steps: self.steps,
-            episode_return: self.episode_return,
+            outcome: self.episode.final_outcome(),
+            steps: self.episode.steps,
+            episode_return: self.episode.episode_return,
             route_length_m: length,
-            completion: if self.outcome == Some(Outcome::Reached) {
+            completion: if self.episode.outcome == Some(Outcome::Reached) {
                 1.0
             } else {
                 (self.s / length).clamp(0.0, 1.0)
@@ -840,25 +830,17 @@ impl Env for RouteFollowing {
         self.time_limit_s = self.config().time_limit_factor * self.route().path.length()
             / self.config().max_speed_mps()
             + 10.0;
-        self.steps = 0;
-        self.episode_return = 0.0;
+        self.episode.reset(Some(self.bike.centre()));
         self.squared_error_sum = 0.0;
         self.in_lane_steps = 0;
         self.speed_sum = 0.0;
-        self.outcome = None;
-        self.trajectory.clear();
-        self.trajectory.push(self.bike.centre());
         self.draw(true);
         self.observation()
     }
 
     fn step(&mut self, action: usize) -> Step {
-        if let Some(outcome) = self.outcome {
-            return Step {
-                observation: self.observation(),
-                reward: 0.0,
-                outcome: Some(outcome),
-            };
+        if self.episode.ended() {
+            return self.episode.finished_step(self.observation());
         }
         // The setup, not its config, is cloned: an Arc, cheap at every step.
         let setup = Arc::clone(&self.setup);
@@ -879,8 +861,8 @@ impl Env for RouteFollowing {
                 break;
             }
         }
-        self.steps += 1;
-        self.trajectory.push(self.bike.centre());
+        self.episode.steps += 1;
+        self.episode.trajectory.push(self.bike.centre());
         let (offset, _) = self.deviation();
         self.squared_error_sum += offset * offset;
         self.speed_sum += self.speed;
@@ -899,29 +881,86 @@ impl Env for RouteFollowing {
         if matches!(outcome, Some(Outcome::Crashed | Outcome::OffRoad)) {
             reward += config.reward.terminal_penalty;
         }
-        self.outcome = outcome;
-        self.episode_return += reward;
         self.draw(false);
-        Step {
-            observation: self.observation(),
-            reward: reward as f32,
-            outcome,
-        }
+        self.episode.step(self.observation(), reward, outcome)
     }
 }
 
+const HELD_OUT: &str = "held-out routes";
+const TRAINING_ROUTES: &str = "training routes";
+
 impl Task for RouteFollowing {
+    type Config = RouteConfig;
+    type Setup = RouteSetup;
     type Summary = RouteSummary;
+    /// The routes episodes draw from.
+    type Condition = RouteSplit;
+
+    const ID: TaskId = TaskId::RouteFollowing;
+
+    fn setup(
+        map: Option<Arc<Map>>,
+        config: RouteConfig,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<RouteSetup>, SimError> {
+        let map = map.ok_or_else(|| SimError::Map("route following needs a map".into()))?;
+        RouteSetup::with_observer(map, config, observer)
+    }
+
+    fn map(setup: &RouteSetup) -> &Map {
+        setup.map()
+    }
+
+    fn camera_view(config: &RouteConfig) -> Option<&CameraViewConfig> {
+        match config.view {
+            View::CameraSegmentation => config.camera.as_ref(),
+            View::Bev | View::Scalars => None,
+        }
+    }
+
+    fn camera_mut(config: &mut RouteConfig) -> Option<&mut CameraViewConfig> {
+        config.camera.as_mut()
+    }
+
+    /// On training routes, whatever the traffic (the other vehicles are the config's).
+    fn training_env(setup: &Arc<RouteSetup>, _: TrafficLevel) -> Self {
+        Self::env(setup, &RouteSplit::Training)
+    }
+
+    fn env(setup: &Arc<RouteSetup>, split: &RouteSplit) -> Self {
+        let mut env = RouteFollowing::new(Arc::clone(setup));
+        env.set_split(*split);
+        env
+    }
+
+    /// The held-out routes, then the training ones.
+    fn conditions(_: &ConditionChoice) -> Vec<RouteSplit> {
+        vec![RouteSplit::HeldOut, RouteSplit::Training]
+    }
+
+    fn condition_name(split: &RouteSplit) -> String {
+        match split {
+            RouteSplit::HeldOut => HELD_OUT,
+            RouteSplit::Training => TRAINING_ROUTES,
+        }
+        .to_owned()
+    }
+
+    /// On training routes only: the held-out routes are for evaluation.
+    fn validation_conditions(_: TrafficLevel) -> Vec<(String, RouteSplit)> {
+        vec![(TRAINING_ROUTES.to_owned(), RouteSplit::Training)]
+    }
+
+    fn recorded_condition(_: TrafficLevel) -> RouteSplit {
+        RouteSplit::HeldOut
+    }
 
     fn summary(&self) -> RouteSummary {
         self.summary_now()
     }
 
     fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
-        let mut baselines = constant_baselines::<Self>(&SteerAction::NAMES);
-        let rule: PolicyFactory<Self> = Box::new(|| Box::new(PursuitRule));
-        baselines.push(("rule: pure pursuit".to_owned(), rule));
-        baselines
+        baselines_with_rule::<Self, PursuitRule>(&SteerAction::NAMES, "rule: pure pursuit")
     }
 
     fn scene(&self) -> Option<Scene<'_>> {
@@ -961,13 +1000,20 @@ impl Task for RouteFollowing {
     }
 
     fn trajectory(&self) -> &[Point] {
-        &self.trajectory
+        &self.episode.trajectory
+    }
+
+    /// Nothing to draw with `view = "scalars"`.
+    fn set_rendering(&mut self, on: bool) {
+        if let Some(view) = &mut self.view {
+            view.set_rendering(on);
+        }
     }
 }
 
 /// Pure pursuit on the route, turned into steering increments: an upper bound that reads
 /// the route exactly.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 pub struct PursuitRule;
 
 impl PursuitRule {
@@ -998,7 +1044,7 @@ impl TaskPolicy<RouteFollowing> for PursuitRule {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tasks::run_episodes;
+    use crate::eval::run_episodes;
 
     /// The bundled campus (ODbL, in the repository), with a small route pool.
     fn campus() -> Arc<RouteSetup> {

@@ -1,38 +1,34 @@
 //! `pipeline agent train | eval`: DQN-family agents on the driving tasks.
 //!
 //! ```text
-//! pipeline agent train --task roundabout-insertion|roundabout-driving --map MAP --out DIR [--steps N] [--traffic LEVEL] [--resume]
+//! pipeline agent train --task TASK [--map MAP] --out DIR [--steps N] [--traffic LEVEL] [--resume]
 //! pipeline agent eval  --agent DIR --map MAP [--episodes N] [--out DIR]
 //! ```
 //!
 //! `MAP` is a map folder or file written by `pipeline map import`, or an OSM / Lanelet2
-//! file imported on the fly with the default car profile. The hyper-parameters come from
-//! the `[agent.dqn]` table of `--config` (see [`models::dqn::DqnConfig`]); the task's from
-//! `[agent.task]` for insertion (see [`sim::tasks::InsertionConfig`]) and
-//! `[agent.roundabout_driving]` for roundabout driving (see [`sim::tasks::RingDrivingConfig`]).
+//! file imported on the fly with the default car profile. `TASK` is a task of the registry
+//! ([`sim::tasks::registry`]). The hyper-parameters come from the `[agent.dqn]` table of
+//! `--config` (see [`models::dqn::DqnConfig`]); the task's from its table of [`AgentConfig`].
 
-mod episodes;
 mod eval;
 mod offline;
-pub mod tasks;
-pub(crate) mod train;
-pub mod validation;
+mod train;
 
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::any::Any;
+use std::path::PathBuf;
 
 use anyhow::Result;
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Subcommand, ValueEnum};
-use maps::Map;
 use serde::{Deserialize, Serialize};
-use sim::tasks::{InsertionConfig, InsertionSetup};
+use sim::tasks::{InsertionConfig, Task, TaskId};
 use sim::world::TrafficLevel;
 
 use super::Context;
-use crate::error::CliError;
 
 pub fn run(ctx: &Context<'_>, command: &AgentCommand) -> Result<()> {
     match command {
+        AgentCommand::Train(args) if args.offline => offline::train(ctx, args),
         AgentCommand::Train(args) => train::train(ctx, args),
         AgentCommand::Eval(args) => eval::eval(ctx, args),
     }
@@ -46,28 +42,12 @@ pub enum AgentCommand {
     Eval(EvalArgs),
 }
 
-/// The tasks agents learn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Task {
-    /// Enter a roundabout from a yield line through circulating traffic (the Parma study).
-    RoundaboutInsertion,
-    /// Follow a planned route over an imported campus, keeping in lane among other traffic
-    /// (the AIT / MTSU studies).
-    RouteFollowing,
-    /// Steer along a route through a roundabout for 10 s (the ITS study).
-    RoundaboutDriving,
-    /// Pass a parked vehicle or yield to a crossing one on a straight synthetic road (the
-    /// Thai CARLA study); needs no map.
-    ObstacleAvoidance,
-}
-
-impl Task {
-    /// The `--task` value.
-    pub fn name(self) -> String {
-        self.to_possible_value()
-            .map_or_else(|| format!("{self:?}"), |v| v.get_name().to_owned())
-    }
+/// `--task`: a task of the registry, by name, its description for `--help`.
+fn task_parser() -> impl TypedValueParser<Value = TaskId> {
+    let names = sim::tasks::TASKS
+        .iter()
+        .map(|info| PossibleValue::new(info.name).help(info.description));
+    PossibleValuesParser::new(names).try_map(|name| TaskId::from_name(&name).ok_or("unknown task"))
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -89,8 +69,8 @@ impl From<TrafficArg> for TrafficLevel {
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
-    #[arg(long, value_enum, default_value = "roundabout-insertion")]
-    pub task: Task,
+    #[arg(long, value_parser = task_parser(), default_value = "roundabout-insertion")]
+    pub task: TaskId,
 
     /// The map: a folder or file from `pipeline map import`, or an OSM / Lanelet2 file
     /// (required by the tasks that drive on a map).
@@ -200,7 +180,8 @@ pub struct EvalArgs {
     pub action_repeat: Option<usize>,
 }
 
-/// `[agent]` of the `--config` file.
+/// `[agent]` of the `--config` file: the training settings, and one table per task of the
+/// registry (its [`Task::Config`]).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AgentConfig {
@@ -216,54 +197,52 @@ pub struct AgentConfig {
     /// `agent train --offline` (the network and optimiser settings come from `[agent.dqn]`).
     pub offline: models::offline::OfflineConfig,
     /// `[agent.validation]`: choosing the agent among the run's checkpoints.
-    pub validation: validation::ValidationConfig,
+    pub validation: models::validation::ValidationConfig,
 }
 
-/// `task.json` of an agent folder: what it was trained on, so evaluation renders the same
-/// observations.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TaskRecord {
-    pub task: Task,
-    /// The map file as given to `agent train` (None for tasks on a synthetic road).
-    pub map: Option<PathBuf>,
-    pub traffic: TrafficLevel,
-    /// The task's `[agent.<table>]` settings (see [`tasks::TaskKind::Config`]).
-    pub config: serde_json::Value,
-    /// How the agent was chosen among the run's checkpoints (absent: the final network).
-    #[serde(default, skip_serializing_if = "validation::ValidationConfig::is_off")]
-    pub validation: validation::ValidationConfig,
-}
+impl AgentConfig {
+    /// The tables of the tasks' settings.
+    fn task_tables(&self) -> [&dyn Any; 4] {
+        [
+            &self.task,
+            &self.route,
+            &self.roundabout_driving,
+            &self.obstacle,
+        ]
+    }
 
-impl TaskRecord {
-    /// The roundabout-insertion settings of an insertion agent.
-    pub fn insertion_config(&self, file: &Path) -> Result<InsertionConfig> {
-        if self.task != Task::RoundaboutInsertion {
-            return Err(CliError::file(
-                file,
-                format!("is a {:?} agent, not a roundabout-insertion one", self.task),
-                "give an agent trained with --task roundabout-insertion",
-            )
-            .into());
-        }
-        tasks::task_config::<tasks::Insertion>(self, file)
+    /// The settings table of task `T` (the table of its config type).
+    pub fn task_table<T: Task>(&self) -> T::Config {
+        self.task_tables()
+            .into_iter()
+            .find_map(|table| table.downcast_ref::<T::Config>())
+            .cloned()
+            .unwrap_or_default()
     }
 }
 
-pub const TASK_FILE: &str = "task.json";
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sim::tasks::TaskVisitor;
 
-/// The roundabout-insertion setup of `map` (its roundabouts' routes and rasters).
-pub fn insertion_setup(
-    map: Map,
-    map_path: &Path,
-    config: InsertionConfig,
-) -> Result<Arc<InsertionSetup>> {
-    InsertionSetup::new(Arc::new(map), config).map_err(|e| {
-        CliError::file(
-            map_path,
-            format!("cannot set up roundabout insertion: {e}"),
-            "the map needs a roundabout with an entry, a ring and an exit (`pipeline map info` lists them); \
-             check [agent.task] in --config",
-        )
-        .into()
-    })
+    struct HasTable<'a>(&'a AgentConfig);
+
+    impl TaskVisitor for HasTable<'_> {
+        type Output = bool;
+        fn visit<T: Task>(self) -> bool {
+            self.0
+                .task_tables()
+                .into_iter()
+                .any(|table| table.is::<T::Config>())
+        }
+    }
+
+    #[test]
+    fn every_task_has_its_settings_table() {
+        let config = AgentConfig::default();
+        for id in TaskId::ALL {
+            assert!(id.visit(HasTable(&config)), "{id:?}");
+        }
+    }
 }

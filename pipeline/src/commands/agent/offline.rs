@@ -35,8 +35,8 @@ use serde::Serialize;
 use sim::tasks::insertion::{AGGRESSIVENESS_SCALAR, Action, LAST_ACTION_SCALARS, RewardConfig};
 use sim::world::TrafficLevel;
 
-use super::train::{AGENT_MARKERS, models_error};
-use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
+use super::TrainArgs;
+use crate::agent_folder::{AGENT_MARKERS, TASK_FILE, Task, TaskRecord, models_error};
 use crate::commands::Context;
 use crate::commands::replay::{Views, read_log};
 use crate::error::CliError;

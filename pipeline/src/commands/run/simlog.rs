@@ -23,6 +23,7 @@ use maps::geometry::Point;
 use serde::Serialize;
 use sim::baselines::{Baseline, PolicyInput};
 use sim::seed::derive_seed;
+use sim::tasks::Task as _;
 use sim::tasks::insertion::{InsertionSetup, RoundaboutInsertion};
 use sim::world::TrafficLevel;
 use sim::{Env, Scene};

@@ -14,23 +14,16 @@
 //! does not change training: the run's transitions and gradient steps are the same with
 //! and without it, so the final network is the one an unvalidated run gives.
 //!
-//! Files: while training, `DIR.partial/best-<steps>` (the best checkpoint so far, for `--resume`)
-//! and `DIR.partial/validation.json`; in the agent folder, `validation.json` (every point
-//! and the one chosen).
+//! Files (written by the `pipeline` binary): while training, `DIR.partial/best-<steps>` (the
+//! best checkpoint so far, for `--resume`, see [`best_dir_name`]) and
+//! `DIR.partial/validation.json`; in the agent folder, [`VALIDATION_FILE`] (every point and
+//! the one chosen).
 
-use std::path::Path;
-
-use anyhow::Result;
-use models::dqn::Checkpoint;
-use models::policy::QPolicy;
 use serde::{Deserialize, Serialize};
 use sim::seed::derive_seed;
 
-use super::train::AGENT_MARKERS;
-use super::{TASK_FILE, TaskRecord};
-use crate::error::CliError;
-use crate::output::AtomicDir;
-use crate::output::write_json;
+use crate::dqn::Checkpoint;
+use crate::policy::QPolicy;
 
 /// `[agent.validation]` of the config file.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -149,24 +142,6 @@ impl ValidationHistory {
             self.add(point);
         }
     }
-
-    /// Reads `validation.json` of `dir`, if there is one.
-    pub fn read(dir: &Path) -> Result<Option<ValidationHistory>> {
-        let path = dir.join(VALIDATION_FILE);
-        if !path.exists() {
-            return Ok(None);
-        }
-        let text = std::fs::read_to_string(&path)
-            .map_err(|e| CliError::file(&path, format!("cannot read: {e}"), "check permissions"))?;
-        let history = serde_json::from_str(&text).map_err(|e| {
-            CliError::file(
-                &path,
-                format!("is not a validation history: {e}"),
-                "remove the folder and train again without --resume",
-            )
-        })?;
-        Ok(Some(history))
-    }
 }
 
 /// Validates a greedy policy: per validation condition, the share that reached the goal.
@@ -191,55 +166,31 @@ impl std::fmt::Debug for Validation {
 }
 
 impl Validation {
-    /// Validation of a new run, or of a run resumed from `resumed`: the history and best
-    /// checkpoint of the folder it was resumed from (`DIR.partial`, else the finished
-    /// agent `DIR`), without the points after the checkpoint it resumes from.
-    pub fn start(
-        config: ValidationConfig,
-        run: ValidationRun,
-        partial: &Path,
-        out: &Path,
-        resumed: Option<&Checkpoint>,
-    ) -> Result<Self> {
-        let mut validation = Validation {
+    /// Validation of a new run.
+    pub fn new(config: ValidationConfig, run: ValidationRun) -> Self {
+        Validation {
             run,
             history: ValidationHistory::new(config.episodes),
             best: None,
-        };
-        let Some(resumed) = resumed else {
-            return Ok(validation);
-        };
-        let found = match ValidationHistory::read(partial)? {
-            Some(history) => Some((history, partial)),
-            None => ValidationHistory::read(out)?.map(|h| (h, out)),
-        };
-        let Some((mut history, dir)) = found else {
-            return Ok(validation);
-        };
-        history.truncate(resumed.state.steps);
-        let best = match history.best_steps {
-            Some(steps) if steps == resumed.state.steps => Some(resumed.clone()),
-            Some(steps) => {
-                let best_dir = dir.join(best_dir_name(steps));
-                if best_dir.is_dir() {
-                    Some(
-                        Checkpoint::load(&best_dir, &models::cpu_device())
-                            .map_err(|e| super::train::models_error(e, &best_dir))?,
-                    )
-                } else {
-                    None
-                }
-            }
-            None => None,
-        };
-        if best.is_none() && history.best_steps.is_some() {
-            // The best checkpoint is gone (e.g. a finished agent resumed from): validation
-            // starts again from the resumed network.
-            history = ValidationHistory::new(config.episodes);
         }
-        validation.history = history;
-        validation.best = best;
-        Ok(validation)
+    }
+
+    /// Validation of a run resumed from a checkpoint: `history` is the history of the folder
+    /// it was resumed from, without the points after that checkpoint, and `best` the best
+    /// checkpoint of that history when it is still there. Without it, validation starts
+    /// again from the resumed network.
+    pub fn resumed(
+        config: ValidationConfig,
+        run: ValidationRun,
+        history: ValidationHistory,
+        best: Option<Checkpoint>,
+    ) -> Self {
+        let history = if best.is_none() && history.best_steps.is_some() {
+            ValidationHistory::new(config.episodes)
+        } else {
+            history
+        };
+        Validation { run, history, best }
     }
 
     /// Validates `checkpoint`; true when it is the best so far.
@@ -248,7 +199,7 @@ impl Validation {
             checkpoint.online.clone(),
             checkpoint.shape.spec(),
             checkpoint.shape.actions,
-            models::cpu_device(),
+            crate::cpu_device(),
         );
         let point = ValidationPoint::new(checkpoint.state.steps, (self.run)(&policy));
         let better = self.history.add(point.clone());
@@ -258,42 +209,9 @@ impl Validation {
         (point, better)
     }
 
-    /// Writes the best checkpoint (when new) and the history into `partial`; call
-    /// [`prune`](Self::prune) once the run's own checkpoint is written.
-    pub fn save(&self, partial: &Path, task: &TaskRecord) -> Result<()> {
-        if let Some(best) = &self.best {
-            let dest = partial.join(best_dir_name(best.state.steps));
-            if !dest.exists() {
-                let dir = AtomicDir::create(&dest, AGENT_MARKERS)?;
-                best.save(dir.path())
-                    .map_err(|e| super::train::models_error(e, dir.path()))?;
-                write_json(&dir.path().join(TASK_FILE), task)?;
-                dir.commit()?;
-            }
-        }
-        write_json(&partial.join(VALIDATION_FILE), &self.history)
-    }
-
-    /// Removes the best checkpoints of `partial` other than the current one. (Until the
-    /// run's checkpoint is written, a resume may still need the earlier one.)
-    pub fn prune(&self, partial: &Path) -> Result<()> {
-        let keep = self.history.best_steps.map(best_dir_name);
-        let Ok(entries) = std::fs::read_dir(partial) else {
-            return Ok(());
-        };
-        for entry in entries.flatten() {
-            let name = entry.file_name().to_string_lossy().into_owned();
-            if name.starts_with(BEST_PREFIX) && Some(&name) != keep.as_ref() {
-                std::fs::remove_dir_all(entry.path()).map_err(|e| {
-                    CliError::file(
-                        &entry.path(),
-                        format!("cannot remove: {e}"),
-                        "check permissions",
-                    )
-                })?;
-            }
-        }
-        Ok(())
+    /// The best checkpoint so far.
+    pub fn best(&self) -> Option<&Checkpoint> {
+        self.best.as_ref()
     }
 
     /// The agent of the run: the final checkpoint, validated, unless an earlier one scored
@@ -311,9 +229,11 @@ impl Validation {
     }
 }
 
-const BEST_PREFIX: &str = "best-";
+/// Folders of the best checkpoints begin with this.
+pub const BEST_PREFIX: &str = "best-";
 
-fn best_dir_name(steps: u64) -> String {
+/// The folder of the best checkpoint at `steps` transitions.
+pub fn best_dir_name(steps: u64) -> String {
     format!("{BEST_PREFIX}{steps}")
 }
 
