@@ -30,7 +30,7 @@ pub struct TrainProgress<'a, 'b> {
     pub first_step: u64,
     pub started: Instant,
     pub last_report: Instant,
-    /// How often the progress line is updated.
+    /// How often the bar's figures (episodes, ε, outcome rates) are updated.
     pub report_every: Duration,
     /// Outcomes of the newest episodes, for the success rates.
     pub recent: OutcomeRates,
@@ -41,7 +41,7 @@ pub struct TrainProgress<'a, 'b> {
 }
 
 /// The span of a training run: transitions from `first_step` (a resumed run's checkpoint)
-/// to `total_steps`; `verbose` reports every 10 s rather than every minute.
+/// to `total_steps`; `verbose` updates the bar's figures every second rather than every two.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RunSpan {
     pub first_step: u64,
@@ -60,6 +60,8 @@ impl<'a, 'b> TrainProgress<'a, 'b> {
         span: RunSpan,
         validation: Option<Validation>,
     ) -> Self {
+        progress.counted("training", span.total_steps, "transitions");
+        progress.resume_at(span.first_step);
         TrainProgress {
             progress,
             recording,
@@ -69,7 +71,7 @@ impl<'a, 'b> TrainProgress<'a, 'b> {
             first_step: span.first_step,
             started: Instant::now(),
             last_report: Instant::now(),
-            report_every: Duration::from_secs(if span.verbose { 10 } else { 60 }),
+            report_every: Duration::from_secs(if span.verbose { 1 } else { 2 }),
             recent: OutcomeRates::new(),
             validation,
             error: None,
@@ -98,23 +100,17 @@ impl<'a, 'b> TrainProgress<'a, 'b> {
 
 impl TrainObserver for TrainProgress<'_, '_> {
     fn iteration(&mut self, state: &TrainState, epsilon: f64) -> bool {
+        self.progress.set_position(state.steps);
         if self.last_report.elapsed() >= self.report_every || state.steps >= self.total_steps {
             self.last_report = Instant::now();
-            let rate = (state.steps - self.first_step) as f64
-                / self.started.elapsed().as_secs_f64().max(1e-9);
-            self.progress.step(&format!(
-                "step {} / {} ({:.0} %), {} episodes, ε {:.3}, last {}: reached {:.0} %, crashed {:.0} %, \
-                 time over {:.0} %; {:.0} steps/s",
-                state.steps,
-                self.total_steps,
-                100.0 * state.steps as f64 / self.total_steps.max(1) as f64,
+            self.progress.set_figures(&format!(
+                "{} episodes, ε {:.3}, last {}: reached {:.0} %, crashed {:.0} %, time over {:.0} %",
                 state.episodes,
                 epsilon,
                 self.recent.len(),
                 100.0 * self.recent.rate(OutcomeName::Reached),
                 100.0 * self.recent.rate(OutcomeName::Crashed),
                 100.0 * self.recent.rate(OutcomeName::TimeOver),
-                rate,
             ));
         }
         self.error.is_none()

@@ -172,3 +172,35 @@ fn log_outcome(rec: &Stream, base: &str, outcome: Outcome) -> Result<()> {
     )
     .context("rerun: cannot log an outcome")
 }
+
+/// `curves.png` of a training run: the return of each episode (averaged over the last
+/// [`CURVE_WINDOW`] episodes) and the reach and crash rates, against transitions.
+pub fn curves_png(state: &TrainState) -> Result<Vec<u8>> {
+    let history = &state.episode_history;
+    let rates = OutcomeRates::along(history);
+    // At most about 600 points a series: the curves are averages over windows already.
+    let stride = (history.len() / 600).max(1);
+    let mut curves = crate::plots::AgentCurves::default();
+    let mut window: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
+    let mut sum = 0.0;
+    for (i, (record, rates)) in history.iter().zip(&rates).enumerate() {
+        window.push_back(record.episode_return);
+        sum += record.episode_return;
+        if window.len() > CURVE_WINDOW {
+            sum -= window.pop_front().unwrap_or(0.0);
+        }
+        if i % stride != 0 && i + 1 != history.len() {
+            continue;
+        }
+        let rate = |name: &str| rates.iter().find(|(n, _)| *n == name).map_or(0.0, |r| r.1);
+        curves
+            .returns
+            .push((record.step, sum / window.len() as f64));
+        curves.reach_rate.push((record.step, rate("reached")));
+        curves.crash_rate.push((record.step, rate("crashed")));
+    }
+    crate::plots::agent_curves_png(&curves)
+}
+
+/// Episodes the return curve of `curves.png` is averaged over (as the outcome rates are).
+pub const CURVE_WINDOW: usize = models::training::RATE_WINDOW;

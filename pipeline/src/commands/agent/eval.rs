@@ -9,8 +9,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use sim::eval::{EvalHeader, EvalOptions, EvalReport, evaluate_agent};
-use sim::tasks::{ConditionChoice, Task, TaskVisitor};
+use sim::Outcome;
+use sim::eval::{EvalHeader, EvalOptions, EvalReport, Evaluation, evaluate_agent};
+use sim::tasks::{ConditionChoice, Task, TaskSummary as _, TaskVisitor};
 
 use super::EvalArgs;
 use crate::agent_folder::{LoadedAgent, TASK_FILE};
@@ -18,10 +19,13 @@ use crate::agent_recording::record_episodes;
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
+use crate::plots::PolicyOutcomes;
 use crate::recording::Stream;
 use crate::ui::Progress;
 
 pub const EVAL_JSON: &str = "eval.json";
+/// The evaluation's picture: outcome shares of the agent and each baseline.
+pub const EVAL_PNG: &str = "eval.png";
 pub const EVAL_MD: &str = "eval.md";
 const EVAL_MARKERS: Markers = &[EVAL_JSON];
 
@@ -127,6 +131,7 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
         episodes: args.episodes,
         seed: ctx.cli.seed,
     };
+    let picture = eval_png(&evaluation, task.task.name())?;
     let report = T::eval_report(&header, &evaluation).map_err(|e| {
         CliError::new(
             format!("cannot tabulate the evaluation: {e}"),
@@ -134,11 +139,33 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
         )
     })?;
 
-    write_outputs(ctx, args, &out, &report, progress, |rec| {
+    write_outputs(ctx, args, &out, (&report, &picture), progress, |rec| {
         crate::recording::log_map(rec, T::map(&setup))?;
         let make_env = || T::env(&setup, &recorded);
         record_episodes(rec, make_env, &policy, args.record_episodes, ctx.cli.seed)
     })
+}
+
+/// `eval.png`: the share of episodes each policy reached, crashed in and ran out of time
+/// in, over every condition evaluated.
+fn eval_png<T: Task>(evaluation: &Evaluation<T>, task: &str) -> Result<Vec<u8>> {
+    let outcomes: Vec<PolicyOutcomes> = evaluation
+        .policies
+        .iter()
+        .map(|(name, per_condition)| {
+            let episodes: Vec<_> = per_condition.iter().flatten().collect();
+            let n = episodes.len().max(1) as f64;
+            let share =
+                |o: Outcome| episodes.iter().filter(|s| s.outcome() == o).count() as f64 / n;
+            PolicyOutcomes {
+                name: name.clone(),
+                reach: share(Outcome::Reached),
+                crash: share(Outcome::Crashed),
+                time_over: share(Outcome::TimeOver),
+            }
+        })
+        .collect();
+    crate::plots::agent_eval_png(&format!("{task}: the agent and its baselines"), &outcomes)
 }
 
 /// The output folder: --out, else `AGENT/eval/<map name>` (or `<task>` without a map).
@@ -157,7 +184,7 @@ fn write_outputs(
     ctx: &Context<'_>,
     args: &EvalArgs,
     out: &Path,
-    report: &EvalReport,
+    (report, picture): (&EvalReport, &[u8]),
     mut progress: Progress<'_>,
     record: impl FnOnce(&Stream) -> Result<()>,
 ) -> Result<()> {
@@ -170,6 +197,7 @@ fn write_outputs(
     for (name, contents) in &report.extra {
         write_file_atomic(&dir.path().join(name), contents.as_bytes())?;
     }
+    write_file_atomic(&dir.path().join(EVAL_PNG), picture)?;
     let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream()
         && args.record_episodes > 0

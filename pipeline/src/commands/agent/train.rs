@@ -31,6 +31,9 @@ use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, write_json};
 
+/// The training curves' picture in an agent folder.
+pub const CURVES_PNG: &str = "curves.png";
+
 pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     args.task.visit(Train { ctx, args })
 }
@@ -192,6 +195,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     }
     let validation = observer.validation.take();
     let last = result.map_err(|e| models_error(e, &partial))?;
+    let curves = crate::agent_recording::curves_png(&last.state)?;
     let elapsed = started.elapsed().as_secs_f64();
     let mut summary = TrainSummary::new(&last.state, first_step, elapsed);
     let checkpoint = match validation {
@@ -226,6 +230,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         .map_err(|e| models_error(e, dir.path()))?;
     write_json(&dir.path().join(TASK_FILE), &task)?;
     write_json(&dir.path().join(SUMMARY_FILE), &summary)?;
+    crate::plots::write_png(&dir.path().join(CURVES_PNG), &curves)?;
 
     if let Some(rec) = recording.stream()
         && args.record_episodes > 0
