@@ -19,7 +19,7 @@ reader (the files are then in the page cache for everybody), then RUNS timed pas
 The ratio is our messages/s over the fastest Python reader's on the same storage and mode.
 
 Usage (from the repository root, with ../shared/data beside it):
-    cargo build --release -p datasets --example bench_logs
+    cargo build --release -p logs --example bench_logs
     pip install mcap mcap-ros2-support rosbags
     python3 scripts/bench_logs.py [--runs 7] [--out docs/benchmarks/logs.json]
 """
@@ -123,7 +123,7 @@ def time_python(fn, path, runs):
 def ours(runs):
     exe = target_dir() / "release/examples/bench_logs"
     if not exe.exists():
-        sys.exit(f"{exe} is missing: cargo build --release -p datasets --example bench_logs")
+        sys.exit(f"{exe} is missing: cargo build --release -p logs --example bench_logs")
     out = subprocess.run(
         [str(exe), "--runs", str(runs)] + [str(p) for p in STORAGES.values()],
         check=True, capture_output=True, text=True).stdout

@@ -5,7 +5,7 @@ The agents are judged by how many of the FT drivers' go and wait frames they agr
 estimates what a strong classifier on hand-made features reaches, as a yardstick for the agents:
 gradient-boosted trees (scikit-learn's HistGradientBoostingClassifier) trained on the go and wait frames
 of FT 000-007 and scored on 008-009, then every recording held out in turn. The features come from
-`cargo run --release -p datasets --example decision_features` (its own speed now, 0.5 s, 1 s and 2 s
+`cargo run --release -p logs --example decision_features` (its own speed now, 0.5 s, 1 s and 2 s
 before, its slowest speed so far, the distance to the line, the time since the approach began, the
 nearest circulating vehicle upstream of its entry with its arc distance, speed and time to arrive, the
 vehicles within 40 m upstream, near the entry and on the ring, the vehicle ahead of it), with the labels
@@ -48,7 +48,7 @@ def main():
 
     binary = args.features_bin
     if binary is None:
-        subprocess.run(["cargo", "build", "--release", "-p", "datasets", "--example", "decision_features"],
+        subprocess.run(["cargo", "build", "--release", "-p", "logs", "--example", "decision_features"],
                        check=True)
         target = os.environ.get("CARGO_TARGET_DIR", "target")
         binary = os.path.join(target, "release", "examples", "decision_features")

@@ -10,7 +10,6 @@ pub mod error;
 pub mod generate;
 pub mod image_io;
 pub mod import;
-pub mod logs;
 pub mod manifest;
 pub mod merge;
 pub mod render;

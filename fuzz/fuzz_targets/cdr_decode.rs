@@ -7,9 +7,9 @@
 
 #![no_main]
 
-use datasets::logs::cdr::WireFormat;
-use datasets::logs::msgs::{self, Wire};
-use datasets::logs::{Codec, MessageKind};
+use logs::cdr::WireFormat;
+use logs::msgs::{self, Wire};
+use logs::{Codec, MessageKind};
 use libfuzzer_sys::fuzz_target;
 
 const FOXGLOVE: [MessageKind; 6] = [

@@ -12,8 +12,8 @@ use std::collections::BTreeSet;
 use std::ops::ControlFlow;
 use std::path::Path;
 
-use datasets::logs::mcap_read::{Limits, McapFacts, read_messages};
-use datasets::logs::{Codec, ReadOptions};
+use logs::mcap_read::{Limits, McapFacts, read_messages};
+use logs::{Codec, ReadOptions};
 use libfuzzer_sys::fuzz_target;
 
 fn read(data: &[u8], options: &ReadOptions) {

@@ -46,10 +46,10 @@ pub struct Config {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LogsConfig {
-    /// Topics named for roles; the others are detected (`datasets::logs::roles`).
-    pub roles: datasets::logs::roles::RoleConfig,
+    /// Topics named for roles; the others are detected (`logs::roles`).
+    pub roles: logs::roles::RoleConfig,
     /// The go / wait labelling of `replay eval` and `agent train --offline`.
-    pub decisions: datasets::logs::decisions::LabelConfig,
+    pub decisions: logs::decisions::LabelConfig,
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

@@ -4,7 +4,7 @@
 //! Each log (objects as vision_msgs/Detection3DArray, e.g. INTERACTION tracks through
 //! `logs convert`) is read; every vehicle's approach to a yield line of the map's
 //! roundabouts is labelled go / wait / ambiguous frame by frame from what its driver did
-//! (`datasets::logs::decisions`). At each labelled frame every policy decides from what
+//! (`logs::decisions`). At each labelled frame every policy decides from what
 //! the driver could see then: the rules from the distance to the nearest vehicle on the
 //! ring, the agent from the bird's-eye frames around the vehicle (its own recorded path,
 //! four frames stacked) and its scalars. Caution counts as wait, as in the Parma study.
@@ -23,15 +23,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use datasets::logs::closed_loop::{
+use datasets::shard::{Shard, in_order};
+use logs::closed_loop::{
     ClosedLoopConfig, ClosedLoopEpisode, ClosedLoopOutcome, ClosedLoopView, Command, drive,
 };
-use datasets::logs::decisions::{Approach, Decision, LabelConfig, approaches};
-use datasets::logs::decode::read_decoded;
-use datasets::logs::noise::NoiseConfig;
-use datasets::logs::project::{LogFrame, log_frames, project};
-use datasets::logs::source::{Log, ReadOptions};
-use datasets::shard::{Shard, in_order};
+use logs::decisions::{Approach, Decision, LabelConfig, approaches};
+use logs::decode::read_decoded;
+use logs::noise::NoiseConfig;
+use logs::project::{LogFrame, log_frames, project};
+use logs::source::{Log, ReadOptions};
 use models::bc::{self, BcConfig};
 use models::dqn::{greedy_action, load_network, read_agent_description};
 use models::policy::QPolicy;
@@ -1242,8 +1242,8 @@ mod tests {
     /// inputs are the speeds of the frames 0.5, 1 and 2 s before and the slowest so far.
     #[test]
     fn logs_give_the_rule_and_motion_inputs_along_each_approach() {
-        use datasets::logs::convert::{ConvertConfig, interaction_to_mcap};
-        use datasets::logs::interaction::read_track_file;
+        use logs::convert::{ConvertConfig, interaction_to_mcap};
+        use logs::interaction::read_track_file;
         use sim::tasks::insertion::RULE_INPUT_RANGE_M;
         let data = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../shared/data/trajectories/interaction");

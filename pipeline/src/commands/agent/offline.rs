@@ -2,7 +2,7 @@
 //! recorded drivers instead of the simulator.
 //!
 //! Every vehicle's approach to a yield line of the map's roundabout in the logs becomes an
-//! episode (`datasets::logs::decisions` labels its frames): at each frame the observation
+//! episode (`logs::decisions` labels its frames): at each frame the observation
 //! the agent would have had there (the bird's-eye frames around the vehicle, its recorded
 //! path, its speed; `replay eval` shows agents the same), the driver's action (go =
 //! Permitted, wait or queued behind another car = Not Permitted; ambiguous frames start no
@@ -28,8 +28,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use datasets::logs::decisions::{Approach, Decision, LabelConfig};
-use datasets::logs::project::LogFrame;
+use logs::decisions::{Approach, Decision, LabelConfig};
+use logs::project::LogFrame;
 use models::offline::{self, OfflineConfig, OfflineRecord, OfflineSummary, TransitionSet};
 use serde::Serialize;
 use sim::tasks::insertion::{AGGRESSIVENESS_SCALAR, Action, LAST_ACTION_SCALARS, RewardConfig};

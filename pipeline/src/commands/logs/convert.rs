@@ -3,8 +3,8 @@
 use std::io::Cursor;
 
 use anyhow::Result;
-use datasets::logs::convert::{ChunkCompression, ConvertConfig, interaction_to_mcap};
-use datasets::logs::interaction::read_track_file;
+use logs::convert::{ChunkCompression, ConvertConfig, interaction_to_mcap};
+use logs::interaction::read_track_file;
 use maps::{ImportOptions, Projection};
 
 use super::{CompressionArg, ConvertArgs, log_error};

@@ -1,15 +1,15 @@
 //! `pipeline logs ego`: the ego's track from a log's ego-pose or GPS topic in a map's frame,
-//! resampled to a fixed rate and matched to the map's lanes (`datasets::logs::ego`), written
+//! resampled to a fixed rate and matched to the map's lanes (`logs::ego`), written
 //! as JSON.
 
 use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, ValueEnum};
-use datasets::logs::decode::read_decoded;
-use datasets::logs::ego::{EgoSource, MatchConfig, ego_track, match_lanes, resample};
-use datasets::logs::roles::Role;
-use datasets::logs::source::{Log, ReadOptions};
+use logs::decode::read_decoded;
+use logs::ego::{EgoSource, MatchConfig, ego_track, match_lanes, resample};
+use logs::roles::Role;
+use logs::source::{Log, ReadOptions};
 use serde_json::json;
 
 use super::{RoleArgs, log_error, topic_roles};

@@ -4,9 +4,9 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Result;
-use datasets::logs::Log;
-use datasets::logs::info::{LogInfo, log_info};
-use datasets::logs::roles::{Assignment, Role, TopicRoles};
+use logs::Log;
+use logs::info::{LogInfo, log_info};
+use logs::roles::{Assignment, Role, TopicRoles};
 
 use super::{InfoArgs, log_error, topic_roles};
 use crate::commands::Context;

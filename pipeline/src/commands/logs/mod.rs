@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use datasets::logs::LogError;
-use datasets::logs::roles::{Role, RoleConfig, TopicRoles, assign_roles, topic_kind};
+use logs::LogError;
+use logs::roles::{Role, RoleConfig, TopicRoles, assign_roles, topic_kind};
 
 use super::Context;
 use crate::error::CliError;
@@ -95,7 +95,7 @@ pub fn topic_roles<'a>(
     topics: impl IntoIterator<Item = (&'a str, &'a str, &'a str)>,
     config: &RoleConfig,
 ) -> Result<TopicRoles> {
-    let topics: Vec<(String, Option<datasets::logs::MessageKind>)> = topics
+    let topics: Vec<(String, Option<logs::MessageKind>)> = topics
         .into_iter()
         .map(|(name, ty, encoding)| (name.to_owned(), topic_kind(ty, encoding)))
         .collect();
@@ -168,7 +168,7 @@ pub(crate) fn log_error(err: LogError) -> anyhow::Error {
 pub fn objects_topic(
     ctx: &Context<'_>,
     log: &Path,
-    decoded: &datasets::logs::DecodedLog,
+    decoded: &logs::DecodedLog,
     args: &RoleArgs,
 ) -> Result<String> {
     let roles = topic_roles(

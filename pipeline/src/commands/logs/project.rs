@@ -17,12 +17,12 @@ use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use clap::Args;
-use datasets::logs::decode::read_decoded;
-use datasets::logs::noise::NoiseConfig;
-use datasets::logs::project::{LogFrame, log_frames, project_shard, track_lengths};
-use datasets::logs::source::{Log, ReadOptions};
 use datasets::shard::{SHARD_KEY, Shard};
 use image::RgbImage;
+use logs::decode::read_decoded;
+use logs::noise::NoiseConfig;
+use logs::project::{LogFrame, log_frames, project_shard, track_lengths};
+use logs::source::{Log, ReadOptions};
 use serde_json::json;
 use sim::render::{BevConfig, BevRenderer, Layer};
 

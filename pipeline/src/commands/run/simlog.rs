@@ -14,11 +14,11 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{Context as _, Result};
-use datasets::logs::convert::{ConvertConfig, interaction_to_mcap};
-use datasets::logs::decode::read_decoded;
-use datasets::logs::project::log_frames;
-use datasets::logs::scenes::{SceneFrame, tracks_from_scene_frames};
-use datasets::logs::source::{Log, ReadOptions};
+use logs::convert::{ConvertConfig, interaction_to_mcap};
+use logs::decode::read_decoded;
+use logs::project::log_frames;
+use logs::scenes::{SceneFrame, tracks_from_scene_frames};
+use logs::source::{Log, ReadOptions};
 use maps::geometry::Point;
 use serde::Serialize;
 use sim::baselines::{Baseline, PolicyInput};

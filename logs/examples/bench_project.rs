@@ -13,10 +13,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Parser;
-use datasets::logs::decode::read_decoded;
-use datasets::logs::noise::NoiseConfig;
-use datasets::logs::project::{log_frames, project, track_lengths};
-use datasets::logs::source::{Log, ReadOptions};
+use logs::decode::read_decoded;
+use logs::noise::NoiseConfig;
+use logs::project::{log_frames, project, track_lengths};
+use logs::source::{Log, ReadOptions};
 use sim::render::{BevConfig, BevRenderer};
 
 #[derive(Debug, Parser)]

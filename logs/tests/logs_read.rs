@@ -12,8 +12,8 @@ use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use datasets::logs::mcap_read::{McapEvent, RecordOptions, read_records};
-use datasets::logs::{Decoded, DecodedLog, Log, ReadOptions, read_decoded};
+use logs::mcap_read::{McapEvent, RecordOptions, read_records};
+use logs::{Decoded, DecodedLog, Log, ReadOptions, read_decoded};
 use serde_json::{Value, json};
 
 fn logs_dir() -> Option<PathBuf> {

@@ -380,10 +380,10 @@ mod tests {
     use std::path::Path;
 
     use super::*;
-    use crate::logs::decode::{Codec, Decoded};
-    use crate::logs::interaction::parse_tracks;
-    use crate::logs::mcap_read::{McapFacts, read_messages};
-    use crate::logs::source::ReadOptions;
+    use crate::decode::{Codec, Decoded};
+    use crate::interaction::parse_tracks;
+    use crate::mcap_read::{McapFacts, read_messages};
+    use crate::source::ReadOptions;
 
     const TRACKS: &str = "track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width\n\
         1,1,100,car,1000.0,990.0,0,2,1.5707963267948966,4.5,1.8\n\

@@ -11,10 +11,10 @@ use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use datasets::logs::cdr::WireFormat;
-use datasets::logs::mcap_read::{Limits, McapFacts, read_messages};
-use datasets::logs::msgs::{self, NavSatFix};
-use datasets::logs::{DecodeError, Log, LogError, ReadOptions, ReadReport, read_decoded};
+use logs::cdr::WireFormat;
+use logs::mcap_read::{Limits, McapFacts, read_messages};
+use logs::msgs::{self, NavSatFix};
+use logs::{DecodeError, Log, LogError, ReadOptions, ReadReport, read_decoded};
 
 fn logs_dir() -> Option<PathBuf> {
     common::shared_data("logs")
@@ -315,12 +315,12 @@ fn attachment_without_room_for_its_crc() {
         r
     }
     fn file(data_records: &[u8]) -> Vec<u8> {
-        let mut f = datasets::logs::source::MCAP_MAGIC.to_vec();
+        let mut f = logs::source::MCAP_MAGIC.to_vec();
         f.extend(record(0x01, &[0; 8])); // Header: profile "", library ""
         f.extend(data_records);
         f.extend(record(0x0f, &[0; 4])); // DataEnd, CRC not computed
         f.extend(record(0x02, &[0; 20])); // Footer without a summary
-        f.extend(datasets::logs::source::MCAP_MAGIC);
+        f.extend(logs::source::MCAP_MAGIC);
         f
     }
     // log_time, create_time, name "", media_type "", data_len 0; then `crc_bytes` of a CRC.

@@ -18,7 +18,7 @@ use super::convert::OBJECTS_TOPIC;
 use super::decode::{Decoded, DecodedLog};
 use super::noise::{NoiseConfig, bend_path, perturb_actors};
 use super::scenes::actors_from_detections;
-use crate::shard::Shard;
+use datasets::shard::Shard;
 
 /// Least distance between the ego path's points, m.
 const PATH_SPACING_M: f64 = 1.0;

@@ -18,7 +18,7 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use datasets::logs::{Log, ReadOptions, read_decoded};
+use logs::{Log, ReadOptions, read_decoded};
 
 /// Times reading (and decoding) every message of each log.
 #[derive(Debug, clap::Parser)]

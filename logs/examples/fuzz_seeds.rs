@@ -18,9 +18,9 @@ use std::io::Cursor;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use datasets::logs::msgdefs::ros2msg_schema;
-use datasets::logs::msgs::{self, Header, Time};
-use datasets::logs::{Log, ReadOptions, Topic};
+use logs::msgdefs::ros2msg_schema;
+use logs::msgs::{self, Header, Time};
+use logs::{Log, ReadOptions, Topic};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 

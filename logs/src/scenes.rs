@@ -99,9 +99,9 @@ pub fn actors_from_detections(array: &Detection3DArray) -> Vec<Actor> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::logs::convert::{ConvertConfig, interaction_to_mcap};
-    use crate::logs::decode::{Decoded, read_decoded};
-    use crate::logs::source::{Log, ReadOptions};
+    use crate::convert::{ConvertConfig, interaction_to_mcap};
+    use crate::decode::{Decoded, read_decoded};
+    use crate::source::{Log, ReadOptions};
 
     fn car(id: u32, x: f64, y: f64, heading_rad: f64) -> Actor {
         Actor {
@@ -143,7 +143,7 @@ mod tests {
         assert_eq!(summary.frames, 5);
         let log = read_decoded(&Log::open(&path)?, &ReadOptions::default())?;
         let arrays: Vec<_> = log
-            .topic_messages(crate::logs::convert::OBJECTS_TOPIC)
+            .topic_messages(crate::convert::OBJECTS_TOPIC)
             .filter_map(|m| match &m.message {
                 Decoded::Detection3DArray(a) => Some(a),
                 _ => None,

@@ -4,16 +4,16 @@
 //! to the label `replay eval` scores. For studying how far such observations explain the
 //! drivers' decisions (docs/logs.md).
 //!
-//! cargo run --release -p datasets --example decision_features -- MAP.osm LOG.mcap... > f.csv
+//! cargo run --release -p logs --example decision_features -- MAP.osm LOG.mcap... > f.csv
 #![allow(clippy::print_stdout, clippy::print_stderr, clippy::unwrap_used)]
 
 use std::collections::BTreeMap;
 use std::f64::consts::TAU;
 use std::path::Path;
 
-use datasets::logs::decisions::{Decision, LabelConfig, approaches};
-use datasets::logs::project::log_frames;
-use datasets::logs::{Log, ReadOptions, read_decoded};
+use logs::decisions::{Decision, LabelConfig, approaches};
+use logs::project::log_frames;
+use logs::{Log, ReadOptions, read_decoded};
 use maps::geometry::Point;
 
 /// Ring vehicles this far from the ring's radius count as circulating, m.
