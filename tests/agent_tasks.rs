@@ -1,6 +1,6 @@
 //! `agent train` and `agent eval` on the tasks other than roundabout insertion, with tiny
 //! budgets: the generic evaluation writes the agent and every baseline per condition, and
-//! the task's metrics (issue 6). Runs on the bundled campus, so it never skips.
+//! the task's metrics. Runs on the bundled campus, so it never skips.
 
 #![allow(clippy::unwrap_used)]
 

@@ -1,5 +1,5 @@
-//! The camera-segmentation view of roundabout driving and route following through the CLI
-//! (issue 6): `agent train` and `agent eval` with `view = "camera-segmentation"` and a
+//! The camera-segmentation view of roundabout driving and route following through the CLI:
+//! `agent train` and `agent eval` with `view = "camera-segmentation"` and a
 //! segmenter folder, and the one clear error of a bad segmenter folder. A small randomly
 //! initialised segmenter stands in for a trained one, and the maps are the bundled ones,
 //! so these tests never skip.

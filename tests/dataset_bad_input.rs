@@ -1,4 +1,4 @@
-//! Issue 3, acceptance 6: bad input to `pipeline dataset import` gives one clear error that
+//! Bad input to `pipeline dataset import` gives one clear error that
 //! names the file, exit code 1 and no output folder; under `--on-error skip` the broken
 //! items are left out and counted, and the good ones are imported. Needs no shared data.
 

@@ -224,8 +224,8 @@ fn bad_input_names_the_file_and_writes_nothing() {
     }
 }
 
-/// Generation in two shards, merged, gives the unsharded run's folder byte for byte
-/// (issue 8, acceptance 3); a missing or repeated shard is refused.
+/// Generation in two shards, merged, gives the unsharded run's folder byte for byte;
+/// a missing or repeated shard is refused.
 #[test]
 fn two_shards_merge_into_the_unsharded_folder() {
     let tmp = tempfile::tempdir().unwrap();

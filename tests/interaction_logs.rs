@@ -1,8 +1,8 @@
 //! Real INTERACTION recordings of the roundabout FT, converted to MCAP (`logs convert`):
-//! - `logs project` around one vehicle (issue 7, acceptance 3): every frame has the ego's
+//! - `logs project` around one vehicle: every frame has the ego's
 //!   footprint at its centre, on the drivable area of the real map, and the frame
 //!   dataset's files agree with each other;
-//! - `replay eval` (issue 7, acceptance 4's harness): approaches found and labelled, the
+//! - `replay eval`: approaches found and labelled, the
 //!   scores consistent with the labels.
 //!
 //! Skips when ../shared/data is absent.
@@ -225,7 +225,7 @@ fn replay_labels_real_approaches_and_scores_the_baselines() {
     );
 }
 
-/// `agent train --offline` (issue 7, offline RL): CQL on the drivers of one FT recording,
+/// `agent train --offline` (offline RL): CQL on the drivers of one FT recording,
 /// with two frames stacked 0.3 s apart and the rule and motion inputs, writes an agent folder like an online one's,
 /// deterministically; `replay eval` and
 /// `agent eval` (the simulator on the same map) take it as they take online agents, and
@@ -425,7 +425,7 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     );
 }
 
-/// Topic roles (issue 7): detected on the Husky drive (odometry and GPS, no objects), a
+/// Topic roles: detected on the Husky drive (odometry and GPS, no objects), a
 /// named topic of the wrong type refused, and projection without an objects topic refused
 /// with the reason.
 #[test]
@@ -485,7 +485,7 @@ fn topic_roles_are_detected_named_or_refused() {
     );
 }
 
-/// `logs ego` (issue 7: GPS into the map frame, resampling, map matching): FT 000 converted
+/// `logs ego` (GPS into the map frame, resampling, map matching): FT 000 converted
 /// with track 60 as the ego; its track from the odometry and from the GPS fixes (unprojected
 /// by the converter, projected back here) agree to the millimetre, lie on the map's lanes,
 /// and resample to the asked rate.

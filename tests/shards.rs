@@ -1,4 +1,4 @@
-//! Scale-out (issue 8): the data-parallel stages run as shards that merge into the
+//! Scale-out: the data-parallel stages run as shards that merge into the
 //! unsharded run's output byte for byte (docs/scaling.md's local examples):
 //! - `dataset augment --shard i/n` + `dataset merge --shards` (bundled map, no shared data);
 //! - `logs project --shard i/n` + `logs merge --shards` and `replay eval --shard i/n` +

@@ -1,4 +1,4 @@
-//! Issue 3, acceptance 1: importing CamVid val through the shipped class map keeps the
+//! Importing CamVid val through the shipped class map keeps the
 //! original pixel shares in the mapped classes.
 //!
 //! The reference is `class_shares.json` beside the data (numpy bincount over every label

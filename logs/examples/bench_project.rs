@@ -1,4 +1,4 @@
-//! Times log projection (issue 7, acceptance 6: at least 20,000 frames per second on 2
+//! Times log projection (the goal: at least 20,000 frames per second on 2
 //! cores): an MCAP log (e.g. an INTERACTION recording through `pipeline logs convert`) is
 //! read and decoded once, untimed; then every track in turn is the ego and all its frames
 //! are drawn in the bird's-eye representation (84 × 84, four layers) on a rayon pool of

@@ -1,4 +1,4 @@
-//! Acceptance 2 of the logs reader: a malformed corpus made here from the real files (never
+//! The logs reader on a malformed corpus made here from the real files (never
 //! stored) gives clear errors or counted skips, never a panic or an unbounded allocation.
 //!
 //! Skips with a printed notice when `../shared/data` is absent.

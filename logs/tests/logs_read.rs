@@ -1,4 +1,4 @@
-//! Acceptance 1 of the logs reader on the real recordings in `../shared/data/logs`: the Husky
+//! The logs reader on the real recordings in `../shared/data/logs`: the Husky
 //! drive and the demo TF set in all three storages, the ROS 1 original of the demo set, and
 //! the MCAP conformance subset against upstream's expected records.
 //!

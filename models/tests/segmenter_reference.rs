@@ -1,4 +1,4 @@
-//! Acceptance 4 of issue 4: the burn segmenter computes what the same network computes in
+//! The burn segmenter computes what the same network computes in
 //! PyTorch. `scripts/segmenter_reference.py` stored two small networks' weights, a fixed
 //! input and PyTorch's output under `tests/data/`; here the weights are loaded into the burn
 //! model and its output must match within 1e-4 (absolute), element by element.

@@ -1,4 +1,4 @@
-//! Training tests with tiny budgets (issue 4, acceptance 6 and the determinism and resume
+//! Training tests with tiny budgets (the determinism and resume
 //! guarantees): a tiny network overfits 4 synthetic 32×32 images to mIoU ≥ 0.95; the same
 //! seed gives byte-identical models with 1 and 2 threads; a run resumed from a checkpoint
 //! ends exactly where an uninterrupted run ends.

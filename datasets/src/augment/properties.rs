@@ -1,4 +1,4 @@
-//! Property tests of the augmentation (issue 3, acceptance 2).
+//! Property tests of the augmentation.
 //!
 //! Alignment: the image is a palette picture of rectangles, one colour per class, and the
 //! label is derived from it by the rule "class = the class whose colour the pixel has".

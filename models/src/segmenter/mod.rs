@@ -1,4 +1,4 @@
-//! The PSPNet-style segmenter (issue 4): the network ([`model`]), its loss ([`loss`]),
+//! The PSPNet-style segmenter: the network ([`model`]), its loss ([`loss`]),
 //! confusion-matrix metrics ([`metrics`]).
 
 pub mod data;

@@ -7,7 +7,7 @@
 //! Reading a log back, each `/objects` frame is turned into scene actors and drawn by the
 //! same renderer the simulator used; `projection.json` gives how far the read-back
 //! footprints lie from the simulated ones and how many bird's-eye pixels agree. Real logs
-//! go through the same reader; their projection command is issue 7's `logs project`.
+//! go through the same reader; their projection command is `logs project`.
 
 use std::collections::BTreeMap;
 use std::path::Path;
