@@ -38,9 +38,9 @@ use sim::world::TrafficLevel;
 use super::train::{AGENT_MARKERS, models_error};
 use super::{TASK_FILE, Task, TaskRecord, TrainArgs};
 use crate::commands::Context;
-use crate::commands::replay::{Views, read_log};
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
+use crate::log_args::{read_replay_log, refuse_unprojectable, replay_views, require_roundabout};
 use crate::output::AtomicDir;
 use crate::output::write_json;
 
@@ -98,7 +98,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let mut progress = ctx.ui.progress("agent train --offline");
 
     let task_config = ctx.config.agent.task.clone();
-    crate::commands::replay::refuse_unprojectable(&task_config, "[agent.task]")?;
+    refuse_unprojectable(&task_config, "[agent.task]")?;
     let mut dqn = ctx.config.agent.dqn.clone();
     for ignored in std::iter::once(AGGRESSIVENESS_SCALAR).chain(LAST_ACTION_SCALARS) {
         if !dqn.network.ignored_scalars.contains(&ignored) {
@@ -118,15 +118,8 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
 
     progress.step(&format!("reading {}", map_path.display()));
     let map = load_or_import_map(map_path)?;
-    if map.roundabouts.is_empty() {
-        return Err(CliError::file(
-            map_path,
-            "has no roundabout",
-            "give the roundabout's map the logs were recorded on",
-        )
-        .into());
-    }
-    let views = Views::new(&map, map_path, task_config.clone(), args.target_speed)?;
+    require_roundabout(&map, map_path)?;
+    let views = replay_views(&map, map_path, task_config.clone(), args.target_speed)?;
 
     // The drivers' approaches as episodes.
     let labels = ctx.config.logs.decisions.clone();
@@ -135,7 +128,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let mut approaches = 0;
     for path in &args.logs {
         progress.step(&format!("reading {}", path.display()));
-        let log = read_log(ctx, &map, path, &labels)?;
+        let log = read_replay_log(ctx, &map, path, &labels)?;
         for approach in &log.approaches {
             let approach = &through_the_ring(approach, &log.frames);
             let inputs = views.inputs(&map, &log.frames, approach);

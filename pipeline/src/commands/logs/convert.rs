@@ -7,9 +7,10 @@ use logs::convert::{ChunkCompression, ConvertConfig, interaction_to_mcap};
 use logs::interaction::read_track_file;
 use maps::{ImportOptions, Projection};
 
-use super::{CompressionArg, ConvertArgs, log_error};
+use super::{CompressionArg, ConvertArgs};
 use crate::commands::Context;
 use crate::error::{CliError, FileRole, map_error};
+use crate::log_args::log_error;
 use crate::output::write_file_atomic;
 
 /// Tracks further than this outside the map's extent count as off the map.
