@@ -18,7 +18,8 @@
 //! - [`ego`] takes the ego's track from its pose or GPS topic into a map's frame, resamples
 //!   it and matches it to lanes;
 //! - [`replay`] judges policies (gap rules, behaviour cloning, agents) against the drivers'
-//!   decisions, open and closed loop (with the `policies` feature, on by default).
+//!   decisions, open and closed loop, and [`offline`] turns the drivers' approaches into
+//!   transitions to learn from (both with the `policies` feature, on by default).
 
 pub mod bag;
 pub mod cdr;
@@ -36,6 +37,8 @@ pub mod mcap_read;
 pub mod msgdefs;
 pub mod msgs;
 pub mod noise;
+#[cfg(feature = "policies")]
+pub mod offline;
 pub mod project;
 #[cfg(feature = "policies")]
 pub mod replay;
