@@ -36,7 +36,9 @@ pub struct TopicInfo {
     pub rate_hz: Option<f64>,
     /// Payload bytes.
     pub bytes: u64,
-    /// The decoder used for it, or why there is none.
+    /// The decoder used for it, or why there is none; written as the decoder's name, or as
+    /// `none (<why>)` ([`decoder_text`]).
+    #[serde(serialize_with = "serialize_decoder")]
     pub decoder: Result<String, String>,
 }
 
@@ -46,6 +48,13 @@ pub fn decoder_text(decoder: &Result<String, String>) -> String {
         Ok(kind) => kind.clone(),
         Err(why) => format!("none ({why})"),
     }
+}
+
+fn serialize_decoder<S: serde::Serializer>(
+    decoder: &Result<String, String>,
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    serializer.serialize_str(&decoder_text(decoder))
 }
 
 #[derive(Debug, Clone, Serialize)]

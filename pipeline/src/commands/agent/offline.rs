@@ -105,8 +105,8 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         crate::recording::log_map(rec, &map)?;
     }
     progress.step(&format!(
-        "{:?}: {} transitions from {approaches} approaches ({} frames); {} gradient steps",
-        config.algorithm,
+        "{}: {} transitions from {approaches} approaches ({} frames); {} gradient steps",
+        config.algorithm.name(),
         set.len(),
         set.frames(),
         config.gradient_steps
@@ -178,10 +178,10 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let dest = dir.commit()?;
     drop(progress);
     ctx.ui.result(&format!(
-        "agent: {}\n  {:?} on {} transitions ({} approaches; actions permitted / not permitted: {} / {}), \
+        "agent: {}\n  {} on {} transitions ({} approaches; actions permitted / not permitted: {} / {}), \
          {} gradient steps in {wall_seconds:.0} s\n  the greedy action is the driver's on {:.1} % of the training transitions",
         dest.display(),
-        config.algorithm,
+        config.algorithm.name(),
         summary.transitions,
         approaches,
         summary.action_counts[Action::Permitted as usize],
