@@ -267,9 +267,12 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
             .output()
             .unwrap();
         assert_success(&result, "agent train --offline");
+        String::from_utf8_lossy(&result.stdout).into_owned()
     };
     let agent = tmp.path().join("cql");
-    train(&agent, "cql");
+    let said = train(&agent, "cql");
+    // The algorithm by name, not by its name in the code.
+    assert!(said.contains("\n  CQL on "), "{said}");
     let run = read_json(&agent.join("offline.json"));
     let summary = &run["summary"];
     assert_eq!(run["config"]["algorithm"], "cql");
@@ -311,7 +314,8 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     );
     // Behaviour cloning has no TD part.
     let bc = tmp.path().join("bc");
-    train(&bc, "bc");
+    let said = train(&bc, "bc");
+    assert!(said.contains("\n  behaviour cloning on "), "{said}");
     let bc_run = read_json(&bc.join("offline.json"));
     assert_eq!(bc_run["config"]["algorithm"], "behaviour_cloning");
     assert!(bc_run["summary"]["curve"][0]["td_loss"].is_null());
@@ -423,6 +427,86 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
         &[],
         "`action_repeat = 3`: it decides every 3 steps",
     );
+}
+
+/// A track file converted with another roundabout's map, one whose extent covers the tracks
+/// (EP's for FT's): refused with the share of positions near its lanes, nothing written.
+#[test]
+fn tracks_are_refused_on_another_scenarios_map() {
+    let Some(data) = shared_data() else {
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
+        return;
+    };
+    let base = data.join("trajectories/interaction");
+    let tracks = base.join("recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_000.csv.gz");
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("ft_000_on_ep.mcap");
+    let out = pipeline()
+        .args(["--rerun", "off", "logs", "convert"])
+        .arg(&tracks)
+        .arg("--map")
+        .arg(base.join("maps/DR_USA_Roundabout_EP.osm"))
+        .arg("--out")
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert_refused(
+        &out,
+        "vehicle_tracks_000.csv.gz: only 39.4 % of the track positions lie within 5 m of a lane of the map",
+        &log,
+    );
+    let err = stderr(&out);
+    let errors: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(errors.len(), 1, "{err}");
+    assert!(errors[0].contains("DR_USA_Roundabout_EP.osm"), "{err}");
+    assert!(
+        err.lines()
+            .any(|l| l.starts_with("hint: give the map of the same scenario")),
+        "{err}"
+    );
+}
+
+/// `logs info --json` names each topic's decoder as the text form does: its name, or
+/// `none (<why>)`.
+#[test]
+fn logs_info_json_names_each_decoder_plainly() {
+    let Some(data) = shared_data() else {
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
+        return;
+    };
+    let decoders = |log: &Path| -> Vec<String> {
+        let out = pipeline()
+            .args(["--rerun", "off", "logs", "info", "--json"])
+            .arg(log)
+            .output()
+            .unwrap();
+        assert_success(&out, "logs info --json");
+        let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        info["topics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| {
+                t["decoder"]
+                    .as_str()
+                    .unwrap_or_else(|| panic!("not a string: {t}"))
+                    .to_owned()
+            })
+            .collect()
+    };
+    assert_eq!(
+        decoders(&data.join("logs/husky/husky.mcap")),
+        ["Imu", "Odometry", "NavSatFix"]
+    );
+    let schemaless =
+        data.join("logs/mcap-conformance/OneSchemalessMessage/OneSchemalessMessage-st.mcap");
+    assert_eq!(decoders(&schemaless), ["none ( in text encoding)"]);
 }
 
 /// Topic roles: detected on the Husky drive (odometry and GPS, no objects), a

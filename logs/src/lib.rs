@@ -10,11 +10,16 @@
 //! - [`roles`] says which topic is the ego pose, the GPS, the objects, the camera (given or
 //!   detected);
 //! - [`project`] draws log frames in the simulator's bird's-eye representation, with
-//!   [`noise`] for perception noise; [`decisions`] labels drivers' go / wait decisions;
-//!   [`closed_loop`] lets a policy drive a recorded vehicle among the replayed others.
-//!
+//!   [`noise`] for perception noise, and [`frames`] is the folder they are written to;
+//!   [`decisions`] labels drivers' go / wait decisions;
+//!   [`closed_loop`] lets a policy drive a recorded vehicle among the replayed others;
+//! - [`simulated`] writes simulated traffic as logs and reads it back, to check that a log
+//!   gives the frames the simulator gave;
 //! - [`ego`] takes the ego's track from its pose or GPS topic into a map's frame, resamples
-//!   it and matches it to lanes.
+//!   it and matches it to lanes;
+//! - [`replay`] judges policies (gap rules, behaviour cloning, agents) against the drivers'
+//!   decisions, open and closed loop, and [`offline`] turns the drivers' approaches into
+//!   transitions to learn from (both with the `policies` feature, on by default).
 
 pub mod bag;
 pub mod cdr;
@@ -25,15 +30,21 @@ pub mod decode;
 pub mod ego;
 pub mod error;
 pub mod foxglove;
+pub mod frames;
 pub mod info;
 pub mod interaction;
 pub mod mcap_read;
 pub mod msgdefs;
 pub mod msgs;
 pub mod noise;
+#[cfg(feature = "policies")]
+pub mod offline;
 pub mod project;
+#[cfg(feature = "policies")]
+pub mod replay;
 pub mod roles;
 pub mod scenes;
+pub mod simulated;
 pub mod source;
 
 pub use decode::{Codec, Decoded, DecodedLog, DecodedMessage, MessageKind, read_decoded};

@@ -46,6 +46,16 @@ pub enum OfflineAlgorithm {
     BehaviourCloning,
 }
 
+impl OfflineAlgorithm {
+    /// The algorithm's name in messages: `CQL`, `behaviour cloning`.
+    pub fn name(self) -> &'static str {
+        match self {
+            OfflineAlgorithm::Cql => "CQL",
+            OfflineAlgorithm::BehaviourCloning => "behaviour cloning",
+        }
+    }
+}
+
 /// The settings of offline training beyond the network and optimiser's, which come from
 /// [`DqnConfig`] (`network`, `double`, `gamma`, `loss`, `learning_rate`, `adam_epsilon`,
 /// `gradient_clip_norm`, `batch_size`); TOML-loadable, every field defaulted.

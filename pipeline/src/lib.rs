@@ -11,6 +11,7 @@ pub mod commands;
 pub mod config;
 pub mod error;
 pub mod inputs;
+pub mod log_args;
 pub mod output;
 pub mod plots;
 pub mod recording;

@@ -1,70 +1,25 @@
 //! `pipeline agent train --offline --log FILE...`: a roundabout-insertion agent learnt from
-//! recorded drivers instead of the simulator.
-//!
-//! Every vehicle's approach to a yield line of the map's roundabout in the logs becomes an
-//! episode (`logs::decisions` labels its frames): at each frame the observation
-//! the agent would have had there (the bird's-eye frames around the vehicle, its recorded
-//! path, its speed; `replay eval` shows agents the same), the driver's action (go =
-//! Permitted, wait or queued behind another car = Not Permitted; ambiguous frames start no
-//! transition) and the task's reward for it, as far as a log tells it:
-//! - per step, `reward.speed` × speed / target speed;
-//! - `reward.to_not_permitted_penalty` when the driver went from go back to wait;
-//! - `reward.reach` at the episode's end.
-//!
-//! An episode goes on past the yield line for up to [`AFTER_CROSSING_S`] of the driver's
-//! frames in the ring, all go (the driver drove on): in the simulator an agent that learnt
-//! only the approach met the ring's views for the first time after entering and stopped there
-//! (1 to 5 % reaches, 86 to 89 % time-overs over 300 FT episodes).
-//!
-//! The headway and cut-in penalties, crashes and time-overs are not in the data: the drivers
-//! neither crashed nor timed out. The network ignores the aggressiveness input (the drivers'
-//! is unknown) and the last-action input (the driver's previous decision nearly always
-//! equals the current one, so a network that reads it learns to repeat itself); the inputs
-//! stay in the observation so the agent runs in the simulator and in `replay eval`
-//! unchanged. The agent folder has the same files as an online agent's, plus `offline.json`.
+//! recorded drivers instead of the simulator. The drivers' approaches become transitions in
+//! `logs::offline` (its docs say how: observations, actions, rewards); this command reads the
+//! map and the logs, trains with `models::offline`, and writes an agent folder with the same
+//! files as an online agent's, plus `offline.json`.
 
-use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use logs::decisions::{Approach, Decision, LabelConfig};
-use logs::project::LogFrame;
-use models::offline::{self, OfflineConfig, OfflineRecord, OfflineSummary, TransitionSet};
-use serde::Serialize;
-use sim::tasks::insertion::{AGGRESSIVENESS_SCALAR, Action, LAST_ACTION_SCALARS, RewardConfig};
+use logs::offline::{LoggedEpisodes, OFFLINE_FILE, OfflineRun, ignore_unlogged_inputs};
+use models::offline::{self, OfflineRecord};
+use sim::tasks::insertion::Action;
 use sim::world::TrafficLevel;
 
 use super::TrainArgs;
 use crate::agent_folder::{AGENT_MARKERS, TASK_FILE, Task, TaskRecord, models_error};
 use crate::commands::Context;
-use crate::commands::replay::{Views, read_log};
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
+use crate::log_args::{read_replay_log, refuse_unprojectable, replay_views, require_roundabout};
 use crate::output::AtomicDir;
 use crate::output::write_json;
-
-/// The offline run's description beside the agent (`offline.json`).
-pub const OFFLINE_FILE: &str = "offline.json";
-/// The aggressiveness written into the inputs (the network ignores it).
-const LOGGED_AGGRESSIVENESS: f64 = 0.5;
-/// How long a driver's frames after the yield line stay in the episode, s.
-pub const AFTER_CROSSING_S: f64 = 15.0;
-
-#[derive(Debug, Serialize)]
-struct OfflineRun<'a> {
-    config: &'a OfflineConfig,
-    logs: &'a [PathBuf],
-    map: &'a PathBuf,
-    target_speed_mps: f64,
-    labels: LabelConfig,
-    approaches: usize,
-    /// Frames per label over the episodes (the approaches, then the ring frames, all go).
-    frames: BTreeMap<String, u64>,
-    summary: &'a OfflineSummary,
-    wall_seconds: f64,
-    gradient_steps_per_second: f64,
-}
 
 pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let hint = "offline training learns roundabout insertion from logs: \
@@ -98,13 +53,9 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let mut progress = ctx.ui.progress("agent train --offline");
 
     let task_config = ctx.config.agent.task.clone();
-    crate::commands::replay::refuse_unprojectable(&task_config, "[agent.task]")?;
+    refuse_unprojectable(&task_config, "[agent.task]")?;
     let mut dqn = ctx.config.agent.dqn.clone();
-    for ignored in std::iter::once(AGGRESSIVENESS_SCALAR).chain(LAST_ACTION_SCALARS) {
-        if !dqn.network.ignored_scalars.contains(&ignored) {
-            dqn.network.ignored_scalars.push(ignored);
-        }
-    }
+    ignore_unlogged_inputs(&mut dqn);
     let mut config = ctx.config.agent.offline.clone();
     if let Some(algorithm) = args.algorithm {
         config.algorithm = algorithm.into();
@@ -118,55 +69,25 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
 
     progress.step(&format!("reading {}", map_path.display()));
     let map = load_or_import_map(map_path)?;
-    if map.roundabouts.is_empty() {
-        return Err(CliError::file(
-            map_path,
-            "has no roundabout",
-            "give the roundabout's map the logs were recorded on",
-        )
-        .into());
-    }
-    let views = Views::new(&map, map_path, task_config.clone(), args.target_speed)?;
+    require_roundabout(&map, map_path)?;
+    let views = replay_views(&map, map_path, task_config.clone(), args.target_speed)?;
 
     // The drivers' approaches as episodes.
     let labels = ctx.config.logs.decisions.clone();
-    let mut set = TransitionSet::new(views.spec(), Action::ALL.len());
-    let mut frames: BTreeMap<String, u64> = BTreeMap::new();
-    let mut approaches = 0;
+    let mut episodes = LoggedEpisodes::new(&views, task_config.reward, args.target_speed);
     for path in &args.logs {
         progress.step(&format!("reading {}", path.display()));
-        let log = read_log(ctx, &map, path, &labels)?;
-        for approach in &log.approaches {
-            let approach = &through_the_ring(approach, &log.frames);
-            let inputs = views.inputs(&map, &log.frames, approach);
-            let actions: Vec<Option<Action>> =
-                approach.labels.iter().map(|&l| driver_action(l)).collect();
-            let mut observations = Vec::with_capacity(inputs.len());
-            let mut rewards = Vec::with_capacity(inputs.len());
-            let mut previous = None;
-            for (i, (input, action)) in inputs.into_iter().zip(&actions).enumerate() {
-                let speed = input.speed_mps;
-                observations.push(views.observation(input, LOGGED_AGGRESSIVENESS, previous));
-                let last = i + 1 == actions.len();
-                rewards.push(logged_reward(
-                    &task_config.reward,
-                    speed / args.target_speed,
-                    previous,
-                    *action,
-                    last,
-                ) as f32);
-                previous = action.or(previous);
-            }
-            let indices: Vec<Option<usize>> =
-                actions.iter().map(|a| a.map(|a| a as usize)).collect();
-            set.push_episode(&observations, &indices, &rewards, true)
-                .map_err(|e| models_error(e, path))?;
-            for l in &approach.labels {
-                *frames.entry(format!("{l:?}").to_lowercase()).or_default() += 1;
-            }
-            approaches += 1;
-        }
+        let log = read_replay_log(ctx, &map, path, &labels)?;
+        episodes
+            .add_log(&map, &views, &log)
+            .map_err(|e| models_error(e, path))?;
     }
+    let LoggedEpisodes {
+        set,
+        approaches,
+        frames,
+        ..
+    } = episodes;
     if set.is_empty() {
         return Err(CliError::new(
             format!(
@@ -184,8 +105,8 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         crate::recording::log_map(rec, &map)?;
     }
     progress.step(&format!(
-        "{:?}: {} transitions from {approaches} approaches ({} frames); {} gradient steps",
-        config.algorithm,
+        "{}: {} transitions from {approaches} approaches ({} frames); {} gradient steps",
+        config.algorithm.name(),
         set.len(),
         set.frames(),
         config.gradient_steps
@@ -257,10 +178,10 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let dest = dir.commit()?;
     drop(progress);
     ctx.ui.result(&format!(
-        "agent: {}\n  {:?} on {} transitions ({} approaches; actions permitted / not permitted: {} / {}), \
+        "agent: {}\n  {} on {} transitions ({} approaches; actions permitted / not permitted: {} / {}), \
          {} gradient steps in {wall_seconds:.0} s\n  the greedy action is the driver's on {:.1} % of the training transitions",
         dest.display(),
-        config.algorithm,
+        config.algorithm.name(),
         summary.transitions,
         approaches,
         summary.action_counts[Action::Permitted as usize],
@@ -269,53 +190,6 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         100.0 * summary.train_agreement,
     ));
     Ok(())
-}
-
-/// `approach` and the driver's frames after the yield line (up to [`AFTER_CROSSING_S`], while
-/// the track is seen), labelled go.
-fn through_the_ring(approach: &Approach, frames: &[LogFrame]) -> Approach {
-    let mut episode = approach.clone();
-    let Some(crossing) = frames.get(approach.crossed_at) else {
-        return episode;
-    };
-    let limit_ns = (AFTER_CROSSING_S * 1e9) as u64;
-    for (k, frame) in frames.iter().enumerate().skip(approach.crossed_at) {
-        let seen = frame.actors.iter().any(|a| a.id == approach.track);
-        if !seen || frame.time_ns.saturating_sub(crossing.time_ns) > limit_ns {
-            break;
-        }
-        episode.frames.push(k);
-        episode.labels.push(Decision::Go);
-    }
-    episode
-}
-
-/// The driver's action at a frame labelled `label`: go is Permitted; waiting for a gap or
-/// behind another car is Not Permitted; an ambiguous frame's is unknown.
-fn driver_action(label: Decision) -> Option<Action> {
-    match label {
-        Decision::Go => Some(Action::Permitted),
-        Decision::Wait | Decision::Queued => Some(Action::NotPermitted),
-        Decision::Ambiguous => None,
-    }
-}
-
-/// The insertion task's reward for a logged step, from the terms a log tells (module docs).
-fn logged_reward(
-    reward: &RewardConfig,
-    speed_over_target: f64,
-    previous: Option<Action>,
-    action: Option<Action>,
-    last: bool,
-) -> f64 {
-    let mut r = reward.speed * speed_over_target;
-    if previous == Some(Action::Permitted) && action == Some(Action::NotPermitted) {
-        r -= reward.to_not_permitted_penalty;
-    }
-    if last {
-        r += reward.reach;
-    }
-    r
 }
 
 fn log_record(rec: &crate::recording::Stream, record: &OfflineRecord) -> Result<()> {
@@ -329,28 +203,4 @@ fn log_record(rec: &crate::recording::Stream, record: &OfflineRecord) -> Result<
         scalars.push(("agent/offline/td_loss", td));
     }
     crate::recording::log_scalars(rec, &scalars)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn logged_rewards_pay_speed_punish_going_back_to_wait_and_pay_the_crossing() {
-        let r = RewardConfig::default();
-        let plain = logged_reward(&r, 0.5, None, Some(Action::Permitted), false);
-        assert!((plain - 0.5 * r.speed).abs() < 1e-12);
-        let back = logged_reward(
-            &r,
-            0.5,
-            Some(Action::Permitted),
-            Some(Action::NotPermitted),
-            false,
-        );
-        assert!((back - (plain - r.to_not_permitted_penalty)).abs() < 1e-12);
-        let crossing = logged_reward(&r, 0.5, None, Some(Action::Permitted), true);
-        assert!((crossing - (plain + r.reach)).abs() < 1e-12);
-        assert_eq!(driver_action(Decision::Queued), Some(Action::NotPermitted));
-        assert_eq!(driver_action(Decision::Ambiguous), None);
-    }
 }

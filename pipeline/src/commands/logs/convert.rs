@@ -4,18 +4,14 @@ use std::io::Cursor;
 
 use anyhow::Result;
 use logs::convert::{ChunkCompression, ConvertConfig, interaction_to_mcap};
-use logs::interaction::read_track_file;
+use logs::interaction::{MIN_SHARE_NEAR_LANES, NEAR_LANE_M, read_track_file};
 use maps::{ImportOptions, Projection};
 
-use super::{CompressionArg, ConvertArgs, log_error};
+use super::{CompressionArg, ConvertArgs};
 use crate::commands::Context;
 use crate::error::{CliError, FileRole, map_error};
+use crate::log_args::log_error;
 use crate::output::write_file_atomic;
-
-/// Tracks further than this outside the map's extent count as off the map.
-const MAP_MARGIN_M: f64 = 50.0;
-/// Below this share of positions on the map, the map is taken to be the wrong one.
-const MIN_SHARE_ON_MAP: f64 = 0.9;
 
 pub fn run(ctx: &Context<'_>, args: &ConvertArgs) -> Result<()> {
     let out = ctx.output_path(&args.out);
@@ -43,16 +39,19 @@ pub fn run(ctx: &Context<'_>, args: &ConvertArgs) -> Result<()> {
         )
         .into());
     }
-    let share = tracks.share_inside(&map.bounds(), MAP_MARGIN_M);
-    if share < MIN_SHARE_ON_MAP {
+    let share = tracks.share_near_lanes(&map, NEAR_LANE_M);
+    if share < MIN_SHARE_NEAR_LANES {
         return Err(CliError::file(
             &args.tracks,
             format!(
-                "only {:.1} % of the track positions lie on the map {}",
+                "only {:.1} % of the track positions lie within {NEAR_LANE_M} m of a lane of the map {} \
+                 (at least {:.0} % must: it looks like another scenario's map)",
                 share * 100.0,
-                args.map.display()
+                args.map.display(),
+                MIN_SHARE_NEAR_LANES * 100.0
             ),
-            "give the map of the same scenario as the track file",
+            "give the map of the same scenario as the track file: \
+             maps/<scenario>.osm for recorded_trackfiles/<scenario>/",
         )
         .into());
     }

@@ -12,10 +12,10 @@ use logs::roles::Role;
 use logs::source::{Log, ReadOptions};
 use serde_json::json;
 
-use super::{RoleArgs, log_error, topic_roles};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
+use crate::log_args::{RoleArgs, log_error, topic_roles};
 use crate::output::write_file_atomic;
 
 #[derive(Debug, Args)]

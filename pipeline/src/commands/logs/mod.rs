@@ -8,15 +8,13 @@ mod info;
 mod merge;
 mod project;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use logs::LogError;
-use logs::roles::{Role, RoleConfig, TopicRoles, assign_roles, topic_kind};
 
 use super::Context;
-use crate::error::CliError;
+use crate::log_args::RoleArgs;
 
 #[derive(Debug, Subcommand)]
 pub enum LogsCommand {
@@ -48,66 +46,6 @@ pub struct InfoArgs {
 
     #[command(flatten)]
     pub roles: RoleArgs,
-}
-
-/// Topics named for roles on the command line (over `[logs.roles]` of the config); a role
-/// named nowhere is detected where that is unambiguous (docs/logs.md, "Topic roles").
-#[derive(Debug, Clone, Default, Args)]
-pub struct RoleArgs {
-    /// Topic of the ego's pose (nav_msgs/Odometry, geometry_msgs/PoseStamped or
-    /// PoseWithCovarianceStamped, foxglove.PoseInFrame).
-    #[arg(long, value_name = "TOPIC")]
-    pub ego_topic: Option<String>,
-
-    /// Topic of the ego's GPS fix (sensor_msgs/NavSatFix, foxglove.LocationFix).
-    #[arg(long, value_name = "TOPIC")]
-    pub gps_topic: Option<String>,
-
-    /// Topic of the other road users (vision_msgs/Detection3DArray).
-    #[arg(long, value_name = "TOPIC")]
-    pub objects_topic: Option<String>,
-
-    /// Topic of the camera (sensor_msgs/Image or CompressedImage, foxglove.CompressedImage).
-    #[arg(long, value_name = "TOPIC")]
-    pub camera_topic: Option<String>,
-}
-
-impl RoleArgs {
-    /// The roles named here, else in `config`.
-    pub fn over(&self, config: &RoleConfig) -> RoleConfig {
-        RoleConfig {
-            ego_pose: self.ego_topic.clone().or_else(|| config.ego_pose.clone()),
-            gps: self.gps_topic.clone().or_else(|| config.gps.clone()),
-            objects: self
-                .objects_topic
-                .clone()
-                .or_else(|| config.objects.clone()),
-            camera: self.camera_topic.clone().or_else(|| config.camera.clone()),
-        }
-    }
-}
-
-/// The roles of `topics` (name, type name, message encoding) in `log`: named by `config`
-/// or detected; a named topic that is missing or of the wrong type is an error naming the
-/// log.
-pub fn topic_roles<'a>(
-    log: &Path,
-    topics: impl IntoIterator<Item = (&'a str, &'a str, &'a str)>,
-    config: &RoleConfig,
-) -> Result<TopicRoles> {
-    let topics: Vec<(String, Option<logs::MessageKind>)> = topics
-        .into_iter()
-        .map(|(name, ty, encoding)| (name.to_owned(), topic_kind(ty, encoding)))
-        .collect();
-    assign_roles(&topics, config).map_err(|e| {
-        CliError::file(
-            log,
-            e,
-            "name the topic with --ego-topic / --gps-topic / --objects-topic / --camera-topic or [logs.roles] \
-             (`pipeline logs info` lists the topics and their types)",
-        )
-        .into()
-    })
 }
 
 #[derive(Debug, Args)]
@@ -148,43 +86,4 @@ pub fn run(ctx: &Context<'_>, command: &LogsCommand) -> Result<()> {
         LogsCommand::Merge(args) => merge::run(ctx, args),
         LogsCommand::Ego(args) => ego::run(ctx, args),
     }
-}
-
-/// A logs-library error as a one-line message naming the file, with a hint.
-pub(crate) fn log_error(err: LogError) -> anyhow::Error {
-    let hint = match &err {
-        LogError::Io { .. } => "check that the path exists and is readable",
-        LogError::Format { .. } => {
-            "give an MCAP file, a ROS 2 bag folder (with metadata.yaml) or a .db3 file; \
-             a truncated or corrupt file can be cut back with `mcap recover`"
-        }
-        LogError::Config(_) => "see `pipeline logs --help`",
-    };
-    CliError::new(err.to_string(), hint).into()
-}
-
-/// The topic of `decoded`'s object detections: named by `args` or `[logs.roles]`, or
-/// detected; an error naming the log when there is none or several.
-pub fn objects_topic(
-    ctx: &Context<'_>,
-    log: &Path,
-    decoded: &logs::DecodedLog,
-    args: &RoleArgs,
-) -> Result<String> {
-    let roles = topic_roles(
-        log,
-        decoded
-            .topics
-            .iter()
-            .map(|t| (t.name.as_str(), t.type_name.as_str(), t.encoding.as_str())),
-        &args.over(&ctx.config.logs.roles),
-    )?;
-    let topic = roles.require(Role::Objects).map_err(|e| {
-        CliError::file(
-            log,
-            e,
-            "name the topic with --objects-topic or [logs.roles] objects, or convert tracks with `pipeline logs convert`",
-        )
-    })?;
-    Ok(topic.to_owned())
 }

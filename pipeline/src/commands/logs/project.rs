@@ -1,11 +1,9 @@
 //! `pipeline logs project`: a log's object frames drawn in the bird's-eye representation
 //! around one vehicle, as a frame dataset.
 //!
-//! The output folder holds `frames.json` (what the frames are: layers, size, extent, the
-//! log, the map, the ego, counts), `frames.jsonl` (one line per frame: time, the ego's
-//! pose and speed, road users), `layers.bin` (the frames' `u8` layers, frame after frame,
-//! layer-major, `width × height` bytes per layer), a few `previews/*.png` (layers in
-//! colour) and the rerun recording (the map, every vehicle as a box, the layers).
+//! The output folder holds `frames.json`, `frames.jsonl`, `layers.bin` and a few
+//! `previews/*.png` (`logs::frames` describes them), and the rerun recording (the map,
+//! every vehicle as a box, the layers).
 //!
 //! With `--shard i/n` only shard `i`'s share of the ego's frames is drawn, and the folder
 //! holds `frames.json` (with the shard record), `frames.jsonl` and `layers.bin`, no
@@ -18,28 +16,24 @@ use std::time::Instant;
 use anyhow::{Context as _, Result};
 use clap::Args;
 use datasets::shard::{SHARD_KEY, Shard};
-use image::RgbImage;
 use logs::decode::read_decoded;
+use logs::frames::{
+    FRAMES_JSON, FRAMES_JSONL, LAYERS_BIN, SHARD_PREVIEWS_KEY, write_card, write_previews,
+};
 use logs::noise::NoiseConfig;
 use logs::project::{LogFrame, log_frames, project_shard, track_lengths};
 use logs::source::{Log, ReadOptions};
 use serde_json::json;
-use sim::render::{BevConfig, BevRenderer, Layer};
+use sim::render::{BevConfig, BevRenderer};
 
-use super::{RoleArgs, log_error, objects_topic};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
+use crate::log_args::{RoleArgs, log_error, objects_topic, write_error};
 use crate::output::AtomicDir;
 use crate::recording::{log_actors, log_layers, log_map};
 
-pub const FRAMES_JSON: &str = "frames.json";
-pub const FRAMES_JSONL: &str = "frames.jsonl";
-pub const LAYERS_BIN: &str = "layers.bin";
-pub const PREVIEWS_DIR: &str = "previews";
-/// Key of a shard's `frames.json` saying how many previews the merged folder gets.
-pub const SHARD_PREVIEWS_KEY: &str = "shard_previews";
-pub const MARKERS: crate::output::Markers = &[FRAMES_JSON];
+const MARKERS: crate::output::Markers = &[FRAMES_JSON];
 
 #[derive(Debug, Args)]
 pub struct ProjectArgs {
@@ -91,79 +85,6 @@ pub struct ProjectArgs {
     /// n shard folders with `pipeline logs merge --shards` (docs/scaling.md).
     #[arg(long, value_name = "i/n", value_parser = Shard::parse)]
     pub shard: Option<Shard>,
-}
-
-/// A frame's layers in colour: navigable grey, path green, stop lines yellow, vehicles red.
-fn preview(frame: &[u8], config: &BevConfig) -> RgbImage {
-    let (w, h) = (config.width, config.height);
-    let layer = |kind: Layer| {
-        config
-            .layers
-            .iter()
-            .position(|l| *l == kind)
-            .map(|i| &frame[i * w * h..(i + 1) * w * h])
-    };
-    let (nav, path, obstacles, lines) = (
-        layer(Layer::Navigable),
-        layer(Layer::Path),
-        layer(Layer::Obstacles),
-        layer(Layer::StopLines),
-    );
-    let on = |l: Option<&[u8]>, i: usize| l.is_some_and(|l| l[i] != 0);
-    RgbImage::from_fn(w as u32, h as u32, |x, y| {
-        let i = y as usize * w + x as usize;
-        image::Rgb(if on(obstacles, i) {
-            [230, 60, 50]
-        } else if on(lines, i) {
-            [250, 220, 40]
-        } else if on(path, i) {
-            [60, 200, 90]
-        } else if on(nav, i) {
-            [120, 120, 120]
-        } else {
-            [20, 20, 20]
-        })
-    })
-}
-
-/// Writes `n` previews evenly spread over the frames of `layers` (the first and the last
-/// included) into `dir/previews/frame_<j>.png`.
-pub fn write_previews(
-    dir: &std::path::Path,
-    layers: &[u8],
-    n: usize,
-    config: &BevConfig,
-) -> Result<()> {
-    let frame_len = config.frame_len();
-    let frames = layers.len() / frame_len.max(1);
-    if n == 0 || frames == 0 {
-        return Ok(());
-    }
-    let previews = dir.join(PREVIEWS_DIR);
-    std::fs::create_dir_all(&previews)
-        .with_context(|| format!("{}: cannot create the folder", previews.display()))?;
-    let n = n.min(frames);
-    for p in 0..n {
-        let j = if n == 1 {
-            0
-        } else {
-            p * (frames - 1) / (n - 1)
-        };
-        let png = datasets::image_io::encode_rgb_png(&preview(
-            &layers[j * frame_len..(j + 1) * frame_len],
-            config,
-        ));
-        let path = previews.join(format!("frame_{j:06}.png"));
-        std::fs::write(&path, png).with_context(|| format!("{}: cannot write", path.display()))?;
-    }
-    Ok(())
-}
-
-/// Writes a frame folder's `frames.json` (pretty JSON and a newline).
-pub fn write_frames_card(dir: &std::path::Path, card: &serde_json::Value) -> Result<()> {
-    let path = dir.join(FRAMES_JSON);
-    std::fs::write(&path, format!("{}\n", serde_json::to_string_pretty(card)?))
-        .with_context(|| format!("{}: cannot write", path.display()))
 }
 
 pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
@@ -267,7 +188,7 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         object.insert(SHARD_KEY.into(), json!(shard));
         object.insert(SHARD_PREVIEWS_KEY.into(), json!(args.previews));
     }
-    write_frames_card(dir.path(), &card)?;
+    write_card(dir.path(), &card).map_err(write_error)?;
     let mut lines = String::new();
     for f in &figures {
         lines.push_str(&serde_json::to_string(f)?);
@@ -289,7 +210,7 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         ));
         return Ok(());
     }
-    write_previews(dir.path(), &layers, args.previews, &config)?;
+    write_previews(dir.path(), &layers, args.previews, &config).map_err(write_error)?;
 
     let recording = ctx.open_recording(Some(dir.path()))?;
     if let Some(rec) = recording.stream() {

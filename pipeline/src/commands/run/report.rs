@@ -7,16 +7,16 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
+use logs::replay::REPLAY_MD;
+use logs::simulated::PROJECTION_JSON;
 use serde_json::Value;
 
 use super::manifest::Manifest;
-use super::simlog::PROJECTION_JSON;
 use super::stages::{
     AGENT_EVAL, AGENT_MODEL, AUGMENTED, CAMPUS_MAP, GENERATED, REPLAY, ROUNDABOUT_MAP,
     SEGMENTER_EVAL, SEGMENTER_MODEL, SIMULATED_LOG, StageName,
 };
 use super::{MANIFEST_FILE, StageOutcome};
-use crate::commands::replay::REPLAY_MD;
 use crate::output::write_file_atomic;
 use crate::recording::RECORDING_FILE;
 

@@ -1,0 +1,101 @@
+//! Policies judged against what real drivers did at roundabout entries (`pipeline replay
+//! eval`).
+//!
+//! Every vehicle's approach to a yield line of the map's roundabouts is labelled go / wait /
+//! ambiguous frame by frame from what its driver did ([`crate::decisions`]). At each labelled
+//! frame every policy decides from what the driver could see then: the rules from the
+//! distance to the nearest vehicle on the ring, the agent and behaviour cloning from the
+//! bird's-eye frames around the vehicle (its own recorded path, the task's frames stacked)
+//! and its scalars ([`views`]). Caution counts as wait, as in the Parma study. Agreement is
+//! over the go and wait frames; ambiguous and queued frames are counted, not scored
+//! ([`tally`]).
+//!
+//! - [`eval`] runs the policies over the approaches (open loop, and closed loop among the
+//!   replayed traffic with [`crate::closed_loop`]);
+//! - [`report`] holds what a run or a shard of it found, the report (`replay.json`) and its
+//!   markdown (`replay.md`), and adds the shards of one run up, byte for byte the unsharded
+//!   run's report.
+
+pub mod eval;
+pub mod report;
+pub mod tally;
+pub mod views;
+
+use maps::Map;
+use sim::render::BevConfig;
+use sim::tasks::insertion::InsertionConfig;
+
+use crate::decisions::{Approach, LabelConfig, approaches};
+use crate::project::LogFrame;
+
+pub use eval::{BC_AGGRESSIVENESS, BcExamples, Policies, RULE_THRESHOLDS, evaluate};
+pub use report::{Counts, MergeError, Report, Settings, ShardFile, markdown, merge_shard_dirs};
+pub use tally::{LoopScore, LoopTally, Score, Tally};
+pub use views::{ClosedLoopInputs, FrameInput, Views, nearest_circulating};
+
+/// The report of a run.
+pub const REPLAY_JSON: &str = "replay.json";
+/// The report's table.
+pub const REPLAY_MD: &str = "replay.md";
+/// A shard's counts (`replay eval --shard i/n`).
+pub const REPLAY_SHARD_JSON: &str = "replay_shard.json";
+
+/// A log read into frames, with its approaches.
+#[derive(Debug, Clone)]
+pub struct ReplayLog {
+    /// The log's file name, the key of its per-log figures.
+    pub name: String,
+    pub frames: Vec<LogFrame>,
+    pub approaches: Vec<Approach>,
+}
+
+impl ReplayLog {
+    /// The log `name` of `frames` with its approaches to `map`'s yield lines, labelled by
+    /// `labels`.
+    pub fn new(name: String, frames: Vec<LogFrame>, map: &Map, labels: &LabelConfig) -> Self {
+        let approaches = approaches(map, &frames, labels);
+        ReplayLog {
+            name,
+            frames,
+            approaches,
+        }
+    }
+}
+
+/// The task whose view the policies get when no agent gives one: behaviour cloning then
+/// sees two stacked frames of 42 × 42 pixels.
+pub fn default_task() -> InsertionConfig {
+    InsertionConfig {
+        observation: BevConfig {
+            width: 42,
+            height: 42,
+            stack: 2,
+            ..BevConfig::default()
+        },
+        ..InsertionConfig::default()
+    }
+}
+
+/// A task that decides every several steps, which projected logs cannot give.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "has `action_repeat = {action_repeat}`: it decides every {action_repeat} steps, and \
+     projected logs give a decision every step"
+)]
+pub struct Unprojectable {
+    pub action_repeat: usize,
+}
+
+/// Projected logs give the bird's-eye layers, the speed, the rule inputs and the motion
+/// inputs of every log frame (one frame per world step), not decisions every several steps
+/// ([`InsertionConfig::action_repeat`]): an error for a task that asks for that. Frames
+/// stacked several steps apart ([`InsertionConfig::frame_steps`]) are stacked that many log
+/// frames apart.
+pub fn check_projectable(config: &InsertionConfig) -> Result<(), Unprojectable> {
+    if config.action_repeat != 1 {
+        return Err(Unprojectable {
+            action_repeat: config.action_repeat,
+        });
+    }
+    Ok(())
+}
