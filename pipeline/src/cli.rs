@@ -316,6 +316,24 @@ pub struct RouteArgs {
     pub out: Option<PathBuf>,
 }
 
+/// `--on-error`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnErrorArg {
+    /// Stop at the first broken item with its error; nothing is written.
+    Fail,
+    /// Leave broken items out; they are counted, listed and reported.
+    Skip,
+}
+
+impl From<OnErrorArg> for datasets::error::OnError {
+    fn from(a: OnErrorArg) -> Self {
+        match a {
+            OnErrorArg::Fail => datasets::error::OnError::Fail,
+            OnErrorArg::Skip => datasets::error::OnError::Skip,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

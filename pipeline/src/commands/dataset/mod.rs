@@ -85,23 +85,7 @@ impl DatasetOutputArgs {
     }
 }
 
-/// `--on-error`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum OnErrorArg {
-    /// Stop at the first broken item with its error; nothing is written.
-    Fail,
-    /// Leave broken items out; they are counted, listed and reported.
-    Skip,
-}
-
-impl From<OnErrorArg> for datasets::error::OnError {
-    fn from(a: OnErrorArg) -> Self {
-        match a {
-            OnErrorArg::Fail => datasets::error::OnError::Fail,
-            OnErrorArg::Skip => datasets::error::OnError::Skip,
-        }
-    }
-}
+pub use crate::cli::OnErrorArg;
 
 /// The last part of a folder path, for default dataset names.
 pub fn folder_name(path: &std::path::Path) -> String {
