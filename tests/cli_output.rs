@@ -97,7 +97,10 @@ fn a_closed_stdout_ends_the_command_quietly() {
         assert_eq!(line, "{\n");
         assert_quiet_end(&out, "logs info --json | head -1");
     } else {
-        println!("skipped: logs info (no shared data)");
+        println!(
+            "skipped: {}: no shared data for logs info",
+            std::thread::current().name().unwrap_or("-")
+        );
     }
 }
 

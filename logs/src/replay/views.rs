@@ -312,7 +312,10 @@ mod tests {
         if !data.is_dir() {
             #[allow(clippy::print_stdout)] // the skip notice the project's data tests print
             {
-                println!("skipped: ../shared/data is absent");
+                println!(
+                    "skipped: {}: ../shared/data is absent",
+                    std::thread::current().name().unwrap_or("-")
+                );
             }
             return;
         }

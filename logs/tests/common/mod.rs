@@ -13,7 +13,11 @@ pub fn shared_data(relative: &str) -> Option<PathBuf> {
     if dir.is_dir() {
         Some(dir)
     } else {
-        println!("skipped: {} is absent", dir.display());
+        println!(
+            "skipped: {}: {} is absent",
+            std::thread::current().name().unwrap_or("-"),
+            dir.display()
+        );
         None
     }
 }
