@@ -31,6 +31,7 @@
 //! `warmup_steps` transitions before learning again, so it is deterministic but not
 //! identical to an uninterrupted run.
 
+use crate::run_folder::write_json;
 use std::path::Path;
 
 use burn::module::Module;
@@ -1015,7 +1016,7 @@ impl Checkpoint {
             .save(dir.join(OPTIMIZER_FILE))
             .map_err(|e| record_error(OPTIMIZER_FILE, e))?;
         write_json(&dir.join(STATE_FILE), &self.state)?;
-        write_json(&dir.join(AGENT_FILE), &self.description())
+        Ok(write_json(&dir.join(AGENT_FILE), &self.description())?)
     }
 
     /// Reads a checkpoint folder written by [`save`](Self::save).
@@ -1081,11 +1082,6 @@ fn read_network(
 
 pub fn read_agent_description(dir: &Path) -> Result<AgentDescription, ModelError> {
     read_json(&dir.join(AGENT_FILE))
-}
-
-fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), ModelError> {
-    let text = serde_json::to_string_pretty(value).map_err(|e| ModelError::file(path, e))?;
-    std::fs::write(path, text + "\n").map_err(|e| ModelError::file(path, e))
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, ModelError> {

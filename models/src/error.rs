@@ -17,3 +17,18 @@ impl ModelError {
         }
     }
 }
+
+impl From<crate::run_folder::RunFolderError> for ModelError {
+    fn from(e: crate::run_folder::RunFolderError) -> Self {
+        use crate::run_folder::RunFolderError as R;
+        let message = match &e {
+            R::Io { source, .. } => source.to_string(),
+            R::Invalid { message, .. } => message.clone(),
+            R::NothingToResume { marker, .. } => {
+                format!("holds no training run to resume (no {marker})")
+            }
+            R::NotEmpty { .. } => "is not empty".to_owned(),
+        };
+        ModelError::file(e.path(), message)
+    }
+}

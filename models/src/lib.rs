@@ -38,6 +38,7 @@ pub mod packed;
 pub mod policy;
 pub mod qnet;
 pub mod replay;
+pub mod run_folder;
 pub mod segmenter;
 pub mod sum_tree;
 #[cfg(feature = "libtorch")]

@@ -25,7 +25,7 @@ use sim::world::TrafficLevel;
 pub use sim::tasks::TaskId as Task;
 
 use crate::error::CliError;
-use crate::output::{AtomicDir, Markers, write_json};
+use crate::output::{Markers, write_json};
 
 pub const TASK_FILE: &str = "task.json";
 pub const SUMMARY_FILE: &str = "summary.json";
@@ -194,13 +194,11 @@ pub fn find_checkpoint(out: &Path, partial: &Path) -> Result<(Checkpoint, TaskRe
 
 /// Writes `checkpoint` and its task record into the folder `dest`, atomically.
 pub fn write_checkpoint(dest: &Path, checkpoint: &Checkpoint, task: &TaskRecord) -> Result<()> {
-    let dir = AtomicDir::create(dest, AGENT_MARKERS)?;
-    checkpoint
-        .save(dir.path())
-        .map_err(|e| models_error(e, dir.path()))?;
-    write_json(&dir.path().join(TASK_FILE), task)?;
-    dir.commit()?;
-    Ok(())
+    models::run_folder::replace_dir(dest, |dir| {
+        checkpoint.save(dir)?;
+        Ok::<_, ModelError>(models::run_folder::write_json(&dir.join(TASK_FILE), task)?)
+    })
+    .map_err(|e| models_error(e, dest))
 }
 
 /// Reads `validation.json` of `dir`, if there is one.
@@ -276,20 +274,6 @@ pub fn save_validation(validation: &Validation, partial: &Path, task: &TaskRecor
 /// checkpoint is written, a resume may still need the earlier one.)
 pub fn prune_validation(validation: &Validation, partial: &Path) -> Result<()> {
     let keep = validation.history.best_steps.map(best_dir_name);
-    let Ok(entries) = std::fs::read_dir(partial) else {
-        return Ok(());
-    };
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        if name.starts_with(BEST_PREFIX) && Some(&name) != keep.as_ref() {
-            std::fs::remove_dir_all(entry.path()).map_err(|e| {
-                CliError::file(
-                    &entry.path(),
-                    format!("cannot remove: {e}"),
-                    "check permissions",
-                )
-            })?;
-        }
-    }
-    Ok(())
+    models::run_folder::prune(partial, BEST_PREFIX, keep.as_deref())
+        .map_err(|e| CliError::new(format!("cannot remove: {e}"), "check permissions").into())
 }

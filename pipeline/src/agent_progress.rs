@@ -15,7 +15,7 @@ use crate::agent_folder::{TaskRecord, prune_validation, save_validation, write_c
 use crate::agent_recording::{log_episode, log_losses, log_validation};
 use crate::error::CliError;
 use crate::recording::Stream;
-use crate::ui::Progress;
+use crate::ui::{Progress, plural};
 
 /// Progress line, rerun curves and checkpoints of a training run.
 #[derive(Debug)]
@@ -104,8 +104,8 @@ impl TrainObserver for TrainProgress<'_, '_> {
         if self.last_report.elapsed() >= self.report_every || state.steps >= self.total_steps {
             self.last_report = Instant::now();
             self.progress.set_figures(&format!(
-                "{} episodes, ε {:.3}, last {}: reached {:.0} %, crashed {:.0} %, time over {:.0} %",
-                state.episodes,
+                "{}, ε {:.3}, last {}: reached {:.0} %, crashed {:.0} %, time over {:.0} %",
+                plural(state.episodes as usize, "episode"),
                 epsilon,
                 self.recent.len(),
                 100.0 * self.recent.rate(OutcomeName::Reached),

@@ -128,13 +128,19 @@ mod tests {
         Ok(())
     }
 
-    /// The files of `configs/` (the recipes the docs present) whose name ends in `.ext`, sorted.
-    fn documented_configs(ext: &str) -> Result<Vec<PathBuf>, String> {
+    /// The TOML files of `configs/` (the recipes the docs present), sorted: the segmenter's
+    /// settings (`segmenter_*.toml`, for `segmenter train --settings`) or the others
+    /// (`--config` files).
+    fn documented_configs(segmenter: bool) -> Result<Vec<PathBuf>, String> {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
         let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
             .map_err(|e| format!("{}: {e}", dir.display()))?
             .filter_map(|entry| entry.ok().map(|e| e.path()))
-            .filter(|path| path.extension().is_some_and(|e| e == ext))
+            .filter(|path| path.extension().is_some_and(|e| e == "toml"))
+            .filter(|path| {
+                let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+                name.is_some_and(|n| n.starts_with("segmenter_")) == segmenter
+            })
             .collect();
         files.sort();
         Ok(files)
@@ -144,7 +150,7 @@ mod tests {
     /// removed option must fail here, not months later in someone's hour-long training run.
     #[test]
     fn every_documented_config_file_reads_and_its_dqn_settings_validate() -> Result<(), String> {
-        let files = documented_configs("toml")?;
+        let files = documented_configs(false)?;
         assert!(!files.is_empty(), "no config files in configs/");
         for file in &files {
             let config = Config::load(Some(file)).map_err(|e| format!("{e:#}"))?;
@@ -161,7 +167,7 @@ mod tests {
     /// still read as a training config and pass its checks.
     #[test]
     fn every_documented_segmenter_settings_file_reads_and_validates() -> Result<(), String> {
-        let files = documented_configs("json")?;
+        let files = documented_configs(true)?;
         assert!(!files.is_empty(), "no segmenter settings in configs/");
         for file in &files {
             let config = models::segmenter::train::load_training_config(file)

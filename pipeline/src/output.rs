@@ -209,11 +209,6 @@ pub fn write_json<T: serde::Serialize + ?Sized>(path: &Path, value: &T) -> Resul
 
 /// Writes a file atomically: a temporary sibling, then a rename.
 pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".to_owned());
-    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         fs::create_dir_all(parent).map_err(|e| {
             CliError::file(
@@ -223,16 +218,15 @@ pub fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
             )
         })?;
     }
-    let result = fs::write(&tmp, bytes).and_then(|()| fs::rename(&tmp, path));
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        return Err(CliError::file(
-            path,
-            format!("cannot write: {e}"),
-            "check the path and permissions",
-        )
-        .into());
-    }
+    models::run_folder::write_bytes(path, bytes).map_err(|e| {
+        let message = match &e {
+            models::run_folder::RunFolderError::Io { source, .. } => {
+                format!("cannot write: {source}")
+            }
+            other => other.to_string(),
+        };
+        CliError::file(path, message, "check the path and permissions")
+    })?;
     Ok(())
 }
 

@@ -25,6 +25,25 @@ pub enum SegmenterError {
     Dataset(#[from] datasets::DatasetError),
 }
 
+impl From<crate::run_folder::RunFolderError> for SegmenterError {
+    fn from(e: crate::run_folder::RunFolderError) -> Self {
+        use crate::run_folder::RunFolderError as R;
+        match e {
+            R::Io { path, source } => SegmenterError::Io { path, source },
+            other => SegmenterError::Invalid {
+                path: other.path().to_path_buf(),
+                message: match other {
+                    R::Invalid { message, .. } => message,
+                    R::NothingToResume { marker, .. } => {
+                        format!("holds no training run to resume (no {marker})")
+                    }
+                    _ => "is not empty".to_owned(),
+                },
+            },
+        }
+    }
+}
+
 impl SegmenterError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         SegmenterError::Io {

@@ -19,22 +19,53 @@ use burn::tensor::Device;
 
 use super::error::{Result, SegmenterError};
 use super::model::{PspNet, PspNetConfig};
+use crate::run_folder::write_atomic;
 
 pub const MODEL_CONFIG_FILE: &str = "model.json";
 pub const MODEL_RECORD_FILE: &str = "model.bpk";
 pub const MODEL_SAFETENSORS_FILE: &str = "model.safetensors";
 
-/// Reads a config file (`model.json`, `train.json`) written by this or an earlier version:
-/// keys the file lacks (settings added since it was written) take their values from
-/// `defaults`, the value that reproduces the earlier behaviour. burn's `Config::load` would
-/// reject such a file. Errors are messages for the caller to attach the path to.
+/// Reads a config file (`model.json`, `train.json`, or settings written as TOML) written by
+/// this or an earlier version: keys the file lacks (settings added since it was written) take
+/// their values from `defaults`, the value that reproduces the earlier behaviour. burn's
+/// `Config::load` would reject such a file. A `.toml` file is read as TOML, whose keys must
+/// all be settings (a typo is an error, not a silent default); anything else as JSON. Errors
+/// are messages for the caller to attach the path to.
 pub fn load_config<C>(path: &Path, defaults: &C) -> std::result::Result<C, String>
 where
     C: serde::Serialize + serde::de::DeserializeOwned,
 {
     let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
-    let file: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+    let is_toml = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    if !is_toml {
+        let file: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+        return config_from_value(file, defaults);
+    }
+    let table: toml::Table = toml::from_str(&text).map_err(|e| e.message().to_owned())?;
+    let file = serde_json::to_value(table).map_err(|e| e.to_string())?;
+    let known = serde_json::to_value(defaults).map_err(|e| e.to_string())?;
+    if let Some(key) = unknown_key(&known, &file, "") {
+        return Err(format!("unknown setting `{key}`"));
+    }
     config_from_value(file, defaults)
+}
+
+/// The first key of `file` (as a dotted path) that `known`, the serialised defaults, lacks,
+/// looking into tables. Unset settings are in `known` too, as `null`.
+fn unknown_key(
+    known: &serde_json::Value,
+    file: &serde_json::Value,
+    prefix: &str,
+) -> Option<String> {
+    let (serde_json::Value::Object(known), serde_json::Value::Object(file)) = (known, file) else {
+        return None;
+    };
+    file.iter().find_map(|(key, value)| match known.get(key) {
+        None => Some(format!("{prefix}{key}")),
+        Some(inner) => unknown_key(inner, value, &format!("{prefix}{key}.")),
+    })
 }
 
 /// [`load_config`] on a parsed JSON value.
@@ -65,18 +96,6 @@ fn overlay(base: &mut serde_json::Value, top: serde_json::Value) {
         }
         (base, top) => *base = top,
     }
-}
-
-/// Writes `file` by writing a temporary sibling and renaming it, so a kill never leaves a
-/// half-written file under the final name.
-pub fn write_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
-    write(&tmp)?;
-    std::fs::rename(&tmp, path).map_err(|e| SegmenterError::io(path, e))
 }
 
 /// Writes a model folder's three files (the folder must exist).

@@ -40,7 +40,7 @@ use crate::averaging::blend;
 use super::data::{Augment, Sample, Source, check_sources, epoch_draws, load_batch, resize_sample};
 use super::error::{Result, SegmenterError};
 use super::eval::{Prediction, class_names, evaluate};
-use super::files::{load_record, save_model, save_record, write_atomic};
+use super::files::{load_record, save_model, save_record};
 use super::infer::{Inference, normalise};
 use super::loss::{
     HardPixels, LabelRef, LossTargets, dice_loss, hard_pixel_loss, lovasz_loss,
@@ -49,6 +49,7 @@ use super::loss::{
 use super::metrics::MetricsSummary;
 use super::model::{PspNet, PspNetConfig};
 use super::recalibrate::recalibrate_batch_norms;
+use crate::run_folder::{read_json, recover_dir, replace_dir, write_atomic, write_json};
 
 pub const TRAIN_CONFIG_FILE: &str = "train.json";
 pub const CURVES_FILE: &str = "curves.jsonl";
@@ -789,7 +790,7 @@ impl Run {
     fn save_best(&self, model: &PspNet, config: &PspNetConfig, point: &EpochPoint) -> Result<()> {
         replace_dir(&self.path(BEST_DIR), |dir| {
             save_model(dir, model, config)?;
-            write_json(&dir.join(METRICS_FILE), point)
+            Ok(write_json(&dir.join(METRICS_FILE), point)?)
         })
     }
 
@@ -809,7 +810,7 @@ impl Run {
             optimizer.save(&opt_path).map_err(|e| {
                 SegmenterError::invalid(&opt_path, format!("cannot write the optimizer state: {e}"))
             })?;
-            write_json(&dir.join(STATE_FILE), state)
+            Ok(write_json(&dir.join(STATE_FILE), state)?)
         })
     }
 
@@ -849,62 +850,6 @@ pub fn trained_short_side(model_dir: &Path) -> Result<Option<u32>> {
     let config = load_training_config(&path)
         .map_err(|e| SegmenterError::invalid(&path, format!("not a training config: {e}")))?;
     Ok(Some(config.size))
-}
-
-/// Writes a folder by filling a temporary sibling and swapping it in: `dest` → `.old`,
-/// temporary → `dest`, `.old` removed. A kill between the two renames leaves `.old`, which
-/// [`recover_dir`] puts back.
-pub fn replace_dir(dest: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let (tmp, old) = sibling_names(dest);
-    if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(|e| SegmenterError::io(&tmp, e))?;
-    }
-    std::fs::create_dir_all(&tmp).map_err(|e| SegmenterError::io(&tmp, e))?;
-    fill(&tmp)?;
-    recover_dir(dest)?;
-    if dest.exists() {
-        std::fs::rename(dest, &old).map_err(|e| SegmenterError::io(dest, e))?;
-    }
-    std::fs::rename(&tmp, dest).map_err(|e| SegmenterError::io(dest, e))?;
-    if old.exists() {
-        std::fs::remove_dir_all(&old).map_err(|e| SegmenterError::io(&old, e))?;
-    }
-    Ok(())
-}
-
-/// Puts back a folder [`replace_dir`] was swapping when it was killed.
-pub fn recover_dir(dest: &Path) -> Result<()> {
-    let (_, old) = sibling_names(dest);
-    if !dest.exists() && old.exists() {
-        std::fs::rename(&old, dest).map_err(|e| SegmenterError::io(dest, e))?;
-    }
-    Ok(())
-}
-
-fn sibling_names(dest: &Path) -> (PathBuf, PathBuf) {
-    let name = dest
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    (
-        dest.with_file_name(format!(".{name}.tmp")),
-        dest.with_file_name(format!(".{name}.old")),
-    )
-}
-
-fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
-    let mut text = serde_json::to_string_pretty(value)
-        .map_err(|e| SegmenterError::invalid(path, format!("cannot encode: {e}")))?;
-    text.push('\n');
-    write_atomic(path, |tmp| {
-        std::fs::write(tmp, &text).map_err(|e| SegmenterError::io(tmp, e))
-    })
-}
-
-fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).map_err(|e| SegmenterError::io(path, e))?;
-    serde_json::from_str(&text)
-        .map_err(|e| SegmenterError::invalid(path, format!("unreadable: {e}")))
 }
 
 #[cfg(test)]
@@ -966,27 +911,32 @@ mod tests {
     }
 
     #[test]
-    fn replaced_folders_survive_a_kill_between_renames() -> Result<()> {
+    fn settings_read_from_toml_keep_defaults_and_refuse_typos() -> Result<()> {
         let root = tempfile::tempdir().map_err(|e| SegmenterError::io(Path::new("tmp"), e))?;
-        let dest = root.path().join("checkpoint");
-        replace_dir(&dest, |d| {
-            std::fs::write(d.join("a"), "1").map_err(|e| SegmenterError::io(d, e))
-        })?;
-        replace_dir(&dest, |d| {
-            std::fs::write(d.join("a"), "2").map_err(|e| SegmenterError::io(d, e))
-        })?;
-        assert_eq!(
-            std::fs::read_to_string(dest.join("a")).ok().as_deref(),
-            Some("2")
-        );
-        // As if killed after `dest -> .old`: recovery brings the old one back.
-        let (_, old) = sibling_names(&dest);
-        std::fs::rename(&dest, &old).map_err(|e| SegmenterError::io(&dest, e))?;
-        recover_dir(&dest)?;
-        assert_eq!(
-            std::fs::read_to_string(dest.join("a")).ok().as_deref(),
-            Some("2")
-        );
+        let path = root.path().join("recipe.toml");
+        let write =
+            |text: &str| std::fs::write(&path, text).map_err(|e| SegmenterError::io(&path, e));
+        write(
+            "# a recipe\nepochs = 7\nclass_weights = [1.0, 2.0, 1.0, 1.0, 0.5]\n[model]\nwidth = 0.5\n",
+        )?;
+        let c = load_training_config(&path).map_err(|e| SegmenterError::invalid(&path, e))?;
+        let defaults = TrainingConfig::new(PspNetConfig::new());
+        assert_eq!(c.epochs, 7);
+        assert_eq!(c.model.width, 0.5);
+        assert_eq!(c.class_weights, Some(vec![1.0, 2.0, 1.0, 1.0, 0.5]));
+        assert_eq!(c.batch_size, defaults.batch_size);
+        assert_eq!(c.model.depth, defaults.model.depth);
+        // A misspelt key, at the top or in [model], is named rather than ignored.
+        write("epoch = 7\n")?;
+        let err = load_training_config(&path).err();
+        assert!(err.is_some_and(|e| e.contains("`epoch`")));
+        write("[model]\nwidht = 0.5\n")?;
+        let err = load_training_config(&path).err();
+        assert!(err.is_some_and(|e| e.contains("`model.widht`")));
+        // An unset setting may be given.
+        write("patience = 3\n")?;
+        let c = load_training_config(&path).map_err(|e| SegmenterError::invalid(&path, e))?;
+        assert_eq!(c.patience, Some(3));
         Ok(())
     }
 }

@@ -5,22 +5,22 @@
 //! atomically: `images/`, `labels/`, optional `topdown/` and `previews/`, then
 //! `manifest.jsonl` and `card.json`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 use datasets::classes::Class;
-use datasets::generate::{GENERATE_STAGE, GenerateConfig, GeneratedItem, Generator, Workspace};
+use datasets::generate::{GENERATE_STAGE, GeneratedItem, Generator, Workspace};
 use datasets::image_io::{colorize_label, encode_label_png, encode_rgb_png};
 use datasets::manifest::{
     CARD_FILE, Card, IMAGES_DIR, Item, LABELS_DIR, MANIFEST_FILE, PREVIEWS_DIR, write_dataset_files,
 };
-use datasets::render::TopdownConfig;
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
 use serde_json::json;
 
+pub use super::generate_args::{GenerateArgs, resolve_config};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
@@ -35,131 +35,6 @@ pub const TOPDOWN_DIR: &str = "topdown";
 const DATASET_MARKERS: Markers = &[CARD_FILE, MANIFEST_FILE];
 /// How many items are logged to the rerun recording.
 const RECORDED_SAMPLES: u64 = 8;
-
-#[derive(Debug, clap::Args)]
-pub struct GenerateArgs {
-    /// A map (map.json, map.bin or a map folder from `pipeline map import`), or an OSM file
-    /// (.osm, .osm.gz, .osm.pbf) imported on the fly with the default car profile.
-    #[arg(long, value_name = "MAP|OSM", default_value = DEFAULT_MAP)]
-    pub map: PathBuf,
-
-    /// Output folder (written atomically; replaced if it holds an earlier dataset).
-    #[arg(long, value_name = "DIR")]
-    pub out: PathBuf,
-
-    /// Number of images.
-    #[arg(long, default_value_t = 100)]
-    pub count: u64,
-
-    /// Image size, WIDTHxHEIGHT [default: 480x270].
-    #[arg(long, value_name = "WxH")]
-    pub size: Option<String>,
-
-    /// Camera height above the road, metres [default: 1.6].
-    #[arg(long, value_name = "M")]
-    pub camera_height: Option<f64>,
-
-    /// Downward tilt of the camera, degrees [default: 4].
-    #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
-    pub pitch: Option<f64>,
-
-    /// Horizontal field of view, degrees [default: 69].
-    #[arg(long, value_name = "DEG")]
-    pub fov: Option<f64>,
-
-    /// Pedestrians in a view, MIN-MAX (uniform, inclusive) [default: 0-10].
-    #[arg(long, value_name = "MIN-MAX")]
-    pub pedestrians: Option<String>,
-
-    /// Share of pedestrians that cross the road at an intersection when one is in view
-    /// [default: 0.3].
-    #[arg(long, value_name = "SHARE")]
-    pub crossing_share: Option<f64>,
-
-    /// Road users (vehicles and pedestrians) stand within this distance of the camera,
-    /// metres [default: 70]; a shorter range gives nearer, larger people and cars.
-    #[arg(long, value_name = "M")]
-    pub range: Option<f64>,
-
-    /// Also write the top-down label view of each scene (topdown/<id>.png, ego-centred).
-    #[arg(long)]
-    pub topdown: bool,
-
-    /// Also write colour previews of the labels (previews/<id>.png).
-    #[arg(long)]
-    pub previews: bool,
-
-    /// One plain look for every image (no colour, weather, wear or camera jitter).
-    #[arg(long)]
-    pub no_randomise: bool,
-
-    /// Make only shard i of n of the --count items (for running across machines); merge
-    /// the n shard folders with `pipeline dataset merge --shards` (docs/scaling.md).
-    #[arg(long, value_name = "i/n", value_parser = datasets::shard::Shard::parse)]
-    pub shard: Option<datasets::shard::Shard>,
-}
-
-/// "480x270" to (480, 270).
-fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WIDTHxHEIGHT such as 480x270, not `{s}`"))?;
-    let parse = |v: &str| {
-        v.trim()
-            .parse::<u32>()
-            .map_err(|_| format!("expected WIDTHxHEIGHT such as 480x270, not `{s}`"))
-    };
-    Ok((parse(w)?, parse(h)?))
-}
-
-/// The generation config from the defaults and the command line.
-pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
-    let mut config = GenerateConfig::default();
-    if let Some(size) = &args.size {
-        let (w, h) = parse_size(size)
-            .map_err(|m| CliError::new(format!("--size: {m}"), "e.g. --size 512x512"))?;
-        config.camera.width = w;
-        config.camera.height = h;
-    }
-    if let Some(v) = args.camera_height {
-        config.camera.height_m = v;
-    }
-    if let Some(v) = args.pitch {
-        config.camera.pitch_deg = v;
-    }
-    if let Some(v) = args.fov {
-        config.camera.hfov_deg = v;
-    }
-    if let Some(range) = &args.pedestrians {
-        config.traffic.pedestrians = parse_range(range)
-            .map_err(|m| CliError::new(format!("--pedestrians: {m}"), "e.g. --pedestrians 4-16"))?;
-    }
-    if let Some(v) = args.crossing_share {
-        config.traffic.crossing_share = v;
-    }
-    if let Some(v) = args.range {
-        config.traffic.range_m = v;
-    }
-    if args.topdown {
-        config.topdown = Some(TopdownConfig::default());
-    }
-    config.randomise.enabled = !args.no_randomise;
-    config.check().map_err(|e| {
-        CliError::new(
-            e.to_string(),
-            "see `pipeline dataset generate --help` for the ranges",
-        )
-    })?;
-    Ok(config)
-}
-
-/// "4-16" to (4, 16).
-fn parse_range(s: &str) -> std::result::Result<(u32, u32), String> {
-    let bad = || format!("expected MIN-MAX such as 0-10, not `{s}`");
-    let (lo, hi) = s.split_once('-').ok_or_else(bad)?;
-    let parse = |v: &str| v.trim().parse::<u32>().map_err(|_| bad());
-    Ok((parse(lo)?, parse(hi)?))
-}
 
 /// The manifest entry of an item.
 fn manifest_item(item: &GeneratedItem, topdown: bool) -> Result<Item> {
@@ -358,36 +233,4 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
         rayon::current_num_threads(),
     ));
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sizes_parse() {
-        assert_eq!(parse_size("480x270"), Ok((480, 270)));
-        assert_eq!(parse_size("512X512"), Ok((512, 512)));
-        assert!(parse_size("512").is_err());
-        assert!(parse_size("ax2").is_err());
-    }
-
-    #[test]
-    fn pedestrian_ranges_parse_and_bad_traffic_is_refused() {
-        assert_eq!(parse_range("4-16"), Ok((4, 16)));
-        assert!(parse_range("4").is_err());
-        assert!(parse_range("-3-4").is_err());
-        let mut config = GenerateConfig::default();
-        config.traffic.pedestrians = (9, 3);
-        assert!(config.check().is_err());
-        config.traffic.pedestrians = (3, 9);
-        config.traffic.crossing_share = 1.5;
-        assert!(config.check().is_err());
-        config.traffic.crossing_share = 0.6;
-        assert!(config.check().is_ok());
-        config.traffic.range_m = 0.0;
-        assert!(config.check().is_err());
-        config.traffic.range_m = 25.0;
-        assert!(config.check().is_ok());
-    }
 }

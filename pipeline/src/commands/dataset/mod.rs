@@ -9,6 +9,7 @@ use super::Context;
 pub mod augment;
 pub mod check;
 pub mod generate;
+mod generate_args;
 pub mod import;
 pub mod merge;
 pub mod split;

@@ -14,6 +14,7 @@ mod manifest;
 mod report;
 pub mod settings;
 mod simlog;
+mod stage_env;
 pub mod stages;
 
 use std::collections::BTreeMap;
@@ -26,7 +27,7 @@ use clap::{Args, ValueEnum};
 pub use manifest::{MANIFEST_FILE, Manifest, StageRecord, content_hash};
 pub use report::REPORT_FILE;
 use settings::ProfileSettings;
-use stages::StageEnv;
+use stage_env::StageEnv;
 pub use stages::StageName;
 
 use crate::commands::Context;

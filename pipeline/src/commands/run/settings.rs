@@ -52,11 +52,18 @@ pub struct DatasetSettings {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SegmenterSettings {
+    /// The training recipe (`segmenter train --settings`, a file of `configs/`), relative to
+    /// the config file; the keys below override it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settings: Option<PathBuf>,
     pub epochs: usize,
     /// Stops earlier when training has taken this long.
     pub max_minutes: f64,
-    /// Short side the images are resized to, and the square training crop.
+    /// Short side the images are resized to.
     pub size: u32,
+    /// Side of the square training crops [default: `size`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crop: Option<u32>,
     /// Channel multiplier of the encoder.
     pub width: f64,
     pub batch_size: usize,
@@ -67,9 +74,15 @@ pub struct SegmenterSettings {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AgentSettings {
-    /// Environment transitions of training (`[agent.dqn]` gives the rest).
-    pub steps: u64,
-    pub warmup_steps: u64,
+    /// The agent's recipe: a config file whose `[agent]` tables replace those of the run's
+    /// config (a file of `configs/`), relative to the config file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub config: Option<PathBuf>,
+    /// Environment transitions of training [default: the recipe's `total_steps`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steps: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warmup_steps: Option<u64>,
     /// Evaluation episodes at medium traffic and aggressiveness 0.5.
     pub eval_episodes: usize,
 }
@@ -91,16 +104,19 @@ impl ProfileSettings {
                 augment_copies: 1,
             },
             segmenter: SegmenterSettings {
-                epochs: 3,
-                max_minutes: 3.0,
-                size: 128,
+                settings: Some("configs/segmenter_quick.toml".into()),
+                epochs: 12,
+                max_minutes: 8.0,
+                size: 192,
+                crop: Some(128),
                 width: 0.5,
                 batch_size: 8,
                 eval_images: 60,
             },
             agent: AgentSettings {
-                steps: 3000,
-                warmup_steps: 1000,
+                config: Some("configs/insertion_quick.toml".into()),
+                steps: None,
+                warmup_steps: None,
                 eval_episodes: 100,
             },
             logs: LogSettings { seconds: 60.0 },
@@ -116,16 +132,19 @@ impl ProfileSettings {
                 augment_copies: 7,
             },
             segmenter: SegmenterSettings {
+                settings: None,
                 epochs: 40,
                 max_minutes: 120.0,
                 size: 256,
+                crop: None,
                 width: 1.0,
                 batch_size: 8,
                 eval_images: 600,
             },
             agent: AgentSettings {
-                steps: 700_000,
-                warmup_steps: 5000,
+                config: Some("configs/insertion_1h.toml".into()),
+                steps: None,
+                warmup_steps: None,
                 eval_episodes: 3000,
             },
             logs: LogSettings { seconds: 600.0 },

@@ -8,7 +8,8 @@ use std::sync::Arc;
 use anyhow::{Context as _, Result};
 use logs::simulated::{PROJECTION_JSON, SimulatedLogs, record_and_project as simulate};
 
-use super::stages::{ROUNDABOUT_MAP, StageEnv};
+use super::stage_env::StageEnv;
+use super::stages::ROUNDABOUT_MAP;
 use crate::output::AtomicDir;
 use crate::recording::{log_actors, log_layers};
 
@@ -24,7 +25,7 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
     } = simulate(
         Arc::new(map),
         ROUNDABOUT_MAP,
-        env.ctx.config.agent.task.clone(),
+        env.config()?.agent.task,
         env.profile.logs.seconds,
         env.ctx.cli.seed,
         dir.path(),

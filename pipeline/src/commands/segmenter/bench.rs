@@ -19,7 +19,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::train::ArchArgs;
+use super::arch_args::ArchArgs;
 use super::{Context, check_size, open_model, with_threads};
 use crate::error::CliError;
 use crate::ui::plural;

@@ -12,6 +12,7 @@
 //! `MODEL` is a model folder (`model.json` + `model.bpk`) or a training run folder, whose
 //! `best/` model is used.
 
+mod arch_args;
 mod bench;
 mod eval;
 mod predict;
@@ -182,7 +183,7 @@ pub fn read_training_config(path: &Path) -> Result<TrainingConfig> {
         CliError::file(
             path,
             format!("not a training config: {e}"),
-            "give a train.json written by `pipeline segmenter train`",
+            "give a settings .toml (see configs/) or a train.json written by `pipeline segmenter train`",
         )
     })?)
 }

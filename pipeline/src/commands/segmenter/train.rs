@@ -3,12 +3,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use models::segmenter::PspNetConfig;
 use models::segmenter::data::{SourceSpec, Split};
 use models::segmenter::loss::HardPixels;
 use models::segmenter::train::{StopReason, TRAIN_CONFIG_FILE, TrainData, TrainingConfig, train};
 
+use super::arch_args::{ArchArgs, set};
 use super::record::TrainRecorder;
 use super::{
     Context, check_size, open_sources, parse_source, read_training_config, segmenter_error,
@@ -37,8 +38,8 @@ pub struct TrainArgs {
     #[arg(long)]
     pub resume: bool,
 
-    /// All settings as a JSON file (the train.json a run writes); the options below
-    /// override it.
+    /// All settings as a TOML file (such as those of configs/) or the train.json a run
+    /// writes; the options below override it.
     #[arg(long, value_name = "FILE")]
     pub settings: Option<PathBuf>,
 
@@ -140,72 +141,6 @@ pub struct TrainArgs {
     pub threads: Option<usize>,
 }
 
-/// The architecture options (of `train`, and of `bench` without a model).
-#[derive(Debug, Args)]
-pub struct ArchArgs {
-    /// Encoder blocks [default: resnet18].
-    #[arg(long, value_enum)]
-    pub encoder: Option<EncoderArg>,
-
-    /// Channel multiplier of the encoder [default: 1].
-    #[arg(long)]
-    pub width: Option<f64>,
-
-    /// Encoder depth: 3 is output stride 8 [default: 3].
-    #[arg(long)]
-    pub depth: Option<usize>,
-
-    /// Dilate stages 3 and 4 instead of striding.
-    #[arg(long)]
-    pub dilated: bool,
-
-    /// Pyramid pooling output channels [default: 512].
-    #[arg(long, value_name = "N")]
-    pub psp_channels: Option<usize>,
-
-    /// Channels of the stride-8 skip refinement, on stage 2's output (depth 4 and 5) [default: 0, off].
-    #[arg(long, value_name = "N")]
-    pub mid_skip_channels: Option<usize>,
-
-    /// Channels of the stride-4 skip refinement [default: 0, off].
-    #[arg(long, value_name = "N")]
-    pub skip_channels: Option<usize>,
-
-    /// Channels of the stride-2 skip refinement, on the stem's output [default: 0, off].
-    #[arg(long, value_name = "N")]
-    pub fine_skip_channels: Option<usize>,
-
-    /// Train with an auxiliary head on the second-to-last encoder stage.
-    #[arg(long)]
-    pub aux_head: bool,
-}
-
-impl ArchArgs {
-    /// Applies the options given to `m`.
-    pub fn apply(&self, m: &mut PspNetConfig) {
-        if let Some(e) = self.encoder {
-            m.blocks = match e {
-                EncoderArg::Resnet18 => vec![2, 2, 2, 2],
-                EncoderArg::Resnet34 => vec![3, 4, 6, 3],
-            };
-        }
-        set(&mut m.width, self.width);
-        set(&mut m.depth, self.depth);
-        set(&mut m.psp_channels, self.psp_channels);
-        set(&mut m.mid_skip_channels, self.mid_skip_channels);
-        set(&mut m.skip_channels, self.skip_channels);
-        set(&mut m.fine_skip_channels, self.fine_skip_channels);
-        m.dilated |= self.dilated;
-        m.aux_head |= self.aux_head;
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum EncoderArg {
-    Resnet18,
-    Resnet34,
-}
-
 impl TrainArgs {
     /// The settings: `--settings` (or, when resuming, the run's train.json) under the options.
     pub fn training_config(&self, seed: u64, run_dir: &Path) -> Result<TrainingConfig> {
@@ -266,40 +201,18 @@ impl TrainArgs {
 
 /// A fresh run needs an absent or empty folder; a resumed one the folder of a run.
 fn prepare_run_dir(out: &Path, resume: bool) -> Result<()> {
-    let has_run = out.join(TRAIN_CONFIG_FILE).is_file();
-    if resume && !has_run {
-        return Err(CliError::file(
-            out,
-            "holds no training run to resume (no train.json)",
-            "start it without --resume",
-        )
-        .into());
-    }
-    if !resume {
-        let used = std::fs::read_dir(out).is_ok_and(|mut entries| entries.next().is_some());
-        if used {
-            let hint = if has_run {
-                "continue it with --resume, or give a new --out folder"
-            } else {
-                "give a new or empty --out folder"
-            };
-            return Err(CliError::file(out, "is not empty", hint).into());
-        }
-    }
-    std::fs::create_dir_all(out).map_err(|e| {
-        CliError::file(
-            out,
-            format!("cannot create folder: {e}"),
-            "check the --out path",
-        )
-    })?;
-    Ok(())
-}
-
-fn set<T>(slot: &mut T, value: Option<T>) {
-    if let Some(v) = value {
-        *slot = v;
-    }
+    use models::run_folder::RunFolderError;
+    models::run_folder::prepare(out, TRAIN_CONFIG_FILE, resume).map_err(|e| {
+        let hint = match &e {
+            RunFolderError::NothingToResume { .. } => "start it without --resume",
+            RunFolderError::NotEmpty {
+                holds_run: true, ..
+            } => "continue it with --resume, or give a new --out folder",
+            RunFolderError::NotEmpty { .. } => "give a new or empty --out folder",
+            _ => "check the --out path",
+        };
+        CliError::new(e.to_string(), hint).into()
+    })
 }
 
 pub fn run(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {

@@ -1,0 +1,271 @@
+//! `pipeline map import`: an OpenStreetMap or Lanelet2 file to a map folder.
+
+use std::io::Read;
+use std::path::Path;
+
+use anyhow::{Context as _, Result};
+use maps::ImportOptions;
+use maps::Map;
+use maps::osm::InputFormat;
+use maps::summary::MapSummary;
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+use super::options::resolve_import_options;
+use crate::cli::{ImportArgs, RerunMode};
+use crate::commands::Context;
+use crate::error::{CliError, FileRole, map_error};
+use crate::output::{AtomicDir, Markers};
+use crate::recording;
+use crate::ui::plural;
+
+/// The files `map import` writes.
+pub use crate::inputs::{MAP_BIN, MAP_JSON};
+pub const MAP_GEOJSON: &str = "map.geojson";
+pub const PREVIEW_PNG: &str = "preview.png";
+pub const SUMMARY_JSON: &str = "summary.json";
+
+/// A folder holding any of these is an earlier import that may be replaced.
+const IMPORT_MARKERS: Markers = &[SUMMARY_JSON, MAP_JSON, MAP_BIN];
+
+/// Longer side of `preview.png`, pixels.
+const PREVIEW_MAX_PX: u32 = 1024;
+
+/// What `summary.json` says about the input file.
+#[derive(Debug, Clone, Serialize)]
+pub struct InputInfo {
+    /// File name only, so the summary does not depend on where the file was.
+    pub file: String,
+    pub format: InputFormat,
+    pub lanelet2: bool,
+    pub bytes: u64,
+    pub sha256: String,
+}
+
+/// How the map was made: the effective options and the seed.
+#[derive(Debug, Clone, Serialize)]
+pub struct ImportRecord<'a> {
+    pub options: &'a ImportOptions,
+    pub profile_source: &'a str,
+    pub seed: u64,
+    pub pipeline_version: &'static str,
+    pub map_format_version: u32,
+}
+
+/// `summary.json`: the map's summary, then the input and how it was imported.
+#[derive(Debug, Serialize)]
+struct SummaryFile<'a> {
+    #[serde(flatten)]
+    summary: &'a MapSummary,
+    input: &'a InputInfo,
+    import: ImportRecord<'a>,
+}
+
+fn sha256_file(path: &Path) -> Result<(u64, String)> {
+    let read_err = |e: std::io::Error| {
+        anyhow::Error::new(CliError::file(
+            path,
+            format!("cannot read: {e}"),
+            "check that the path exists and is readable",
+        ))
+    };
+    let mut file = std::fs::File::open(path).map_err(read_err)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 16];
+    let mut bytes = 0u64;
+    loop {
+        let n = file.read(&mut buf).map_err(read_err)?;
+        if n == 0 {
+            break;
+        }
+        bytes += n as u64;
+        hasher.update(&buf[..n]);
+    }
+    let hex = hasher
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    Ok((bytes, hex))
+}
+
+pub fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
+    let input = &args.input;
+    let out = ctx.output_path(&args.out);
+    let resolved = resolve_import_options(ctx, args)?;
+    let options = &resolved.options;
+    if !input.is_file() {
+        return Err(CliError::file(
+            input,
+            "no such file",
+            "check the input path (an .osm, .osm.gz or .osm.pbf file)",
+        )
+        .into());
+    }
+    // A bad destination fails now, not after the import.
+    AtomicDir::check_destination(&out, IMPORT_MARKERS)?;
+
+    let mut progress = ctx.ui.progress("map import");
+    progress.step(&format!("reading {}", input.display()));
+    let (osm, format) =
+        maps::osm::read_osm_file(input).map_err(|e| map_error(input, e, FileRole::OsmInput))?;
+    let lanelet2 = osm.is_lanelet2();
+    progress.note(&format!(
+        "{} nodes, {} ways, {} relations{}",
+        osm.nodes.len(),
+        osm.ways.len(),
+        osm.relations.len(),
+        if lanelet2 { " (Lanelet2)" } else { "" }
+    ));
+
+    progress.step(&format!(
+        "building the map (profile {})",
+        options.profile.name
+    ));
+    // The reader parses on every core but the build mostly runs on one: meanwhile, another
+    // core hashes the input for summary.json and prepares the output folder and the
+    // recording (whose sink starts threads). If the build fails, dropping them removes the
+    // folder, recording included.
+    let prepare_outputs = || -> Result<_> {
+        let hashed = sha256_file(input)?;
+        let dir = AtomicDir::create(&out, IMPORT_MARKERS)?;
+        let rec = match ctx.cli.rerun {
+            RerunMode::Off => None,
+            _ => Some(ctx.open_recording(Some(dir.path()))?),
+        };
+        Ok((hashed, dir, rec))
+    };
+    let (built, prepared) = rayon::join(|| maps::import_osm(&osm, options), prepare_outputs);
+    let map = built.map_err(|e| map_error(input, e, FileRole::OsmInput))?;
+    let ((bytes, sha256), dir, rec) = prepared?;
+    // Freeing the parsed OSM data (hundreds of thousands of small allocations) costs more
+    // than the rest of the import's bookkeeping; the process ends right after the import.
+    std::mem::forget(osm);
+    if map.lanes.is_empty() {
+        return Err(CliError::file(
+            input,
+            format!("no drivable roads selected (profile {})", options.profile.name),
+            "the file holds no roads for this profile: try --profile all, a larger --clip-bbox, or another file",
+        )
+        .into());
+    }
+    let summary = maps::summary::summarize(&map);
+    let input_info = InputInfo {
+        file: input
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        format,
+        lanelet2,
+        bytes,
+        sha256,
+    };
+    let record = ImportRecord {
+        options,
+        profile_source: &resolved.profile_source,
+        seed: ctx.cli.seed,
+        pipeline_version: env!("CARGO_PKG_VERSION"),
+        map_format_version: maps::model::MAP_FORMAT_VERSION,
+    };
+
+    progress.step(&format!("writing {}", out.display()));
+    // The recording is independent of the files: log it while they are encoded. It is
+    // finished (flushed, closed) before the rename, so the .rrd is complete when the folder appears.
+    let (written, recorded) = rayon::join(
+        || write_outputs(dir.path(), &map, &summary, &input_info, record),
+        || -> Result<()> {
+            let Some(rec) = rec else {
+                return Ok(());
+            };
+            if let Some(stream) = rec.stream() {
+                recording::log_map(stream, &map)?;
+            }
+            rec.finish()
+        },
+    );
+    written?;
+    recorded?;
+    let dest = dir.commit()?;
+    drop(progress);
+
+    let km = summary.car_lane_length_m / 1000.0;
+    ctx.ui.info(&format!(
+        "map import: wrote {}: {}, {} ({km:.1} km of car lanes), {}, {}",
+        dest.display(),
+        plural(summary.roads, "road"),
+        plural(summary.lanes, "lane"),
+        plural(summary.junctions, "junction"),
+        plural(summary.roundabouts.len(), "roundabout"),
+    ));
+    let skipped = &summary.skipped;
+    if skipped.ways_missing_nodes + skipped.degenerate_ways + skipped.invalid_nodes > 0 {
+        ctx.ui.warn(&format!(
+            "skipped {} with missing nodes, {}, {} with invalid coordinates (see {SUMMARY_JSON})",
+            plural(skipped.ways_missing_nodes, "way"),
+            plural(skipped.degenerate_ways, "degenerate way"),
+            plural(skipped.invalid_nodes, "node")
+        ));
+    }
+    Ok(())
+}
+
+fn write_outputs(
+    dir: &Path,
+    map: &Map,
+    summary: &MapSummary,
+    input: &InputInfo,
+    import: ImportRecord<'_>,
+) -> Result<()> {
+    let write = |name: &str, bytes: &[u8]| -> Result<()> {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).map_err(|e| {
+            anyhow::Error::new(CliError::file(
+                &path,
+                format!("cannot write: {e}"),
+                "check free disk space and permissions",
+            ))
+        })
+    };
+    let encode_and_write = |name: &str, encoded: Result<Vec<u8>, maps::MapError>| {
+        write(
+            name,
+            &encoded.map_err(|e| map_error(dir, e, FileRole::Output))?,
+        )
+    };
+    // The four files are independent: encode and write them side by side; a failure is
+    // reported in this fixed order.
+    let ((json, bin), (geojson, png)) = rayon::join(
+        || {
+            rayon::join(
+                || encode_and_write(MAP_JSON, maps::io::to_json_bytes(map)),
+                || encode_and_write(MAP_BIN, maps::io::to_binary_bytes(map)),
+            )
+        },
+        || {
+            rayon::join(
+                || {
+                    let text = maps::geojson::to_geojson_string(map);
+                    encode_and_write(MAP_GEOJSON, text.map(String::into_bytes))
+                },
+                || {
+                    let png = maps::preview::render_preview_png(map, PREVIEW_MAX_PX);
+                    encode_and_write(PREVIEW_PNG, png)
+                },
+            )
+        },
+    );
+    json?;
+    bin?;
+    geojson?;
+    png?;
+    let file = SummaryFile {
+        summary,
+        input,
+        import,
+    };
+    let mut text =
+        serde_json::to_string_pretty(&file).context("summary.json: serialisation failed")?;
+    text.push('\n');
+    write(SUMMARY_JSON, text.as_bytes())?;
+    Ok(())
+}
