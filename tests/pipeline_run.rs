@@ -12,7 +12,8 @@ use std::path::Path;
 
 use common::{assert_success, pipeline, read_json, stderr};
 
-/// A tiny profile: seconds per stage in a debug build.
+/// A tiny profile: seconds per stage in a debug build. The agent decides every 3 steps, as
+/// the bundled quick profile's does, so the replay stage asks it at every log frame.
 fn tiny_config(images: u32) -> String {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let profile = format!(
@@ -38,7 +39,7 @@ seconds = 5.0
     );
     let with_prefix = |name: &str| profile.replace("\n[", &format!("\n[run.{name}."));
     format!(
-        "[run]\ncampus = \"{}\"\nroundabout = \"{}\"\n{}{}\n[agent.dqn]\nenvs = 2\nbatch_size = 8\nreplay_capacity = 1000\n",
+        "[run]\ncampus = \"{}\"\nroundabout = \"{}\"\n{}{}\n[agent.dqn]\nenvs = 2\nbatch_size = 8\nreplay_capacity = 1000\n[agent.task]\naction_repeat = 3\n",
         repo.join("data/osm/northwestern_nu.osm.pbf").display(),
         repo.join("data/osm/montlake_roundabout.osm.pbf").display(),
         with_prefix("quick"),

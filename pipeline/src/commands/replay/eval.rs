@@ -33,7 +33,18 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         Some(dir) => {
             progress.step(&format!("loading the agent {}", dir.display()));
             let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
-            let config = read_task(dir)?.insertion_config(&dir.join(TASK_FILE))?;
+            let mut config = read_task(dir)?.insertion_config(&dir.join(TASK_FILE))?;
+            if config.action_repeat > 1 {
+                // Logs give a frame, so a decision, every world step: an agent trained
+                // deciding every few steps is asked at every frame, on frames stacked as far
+                // apart as in training (as `agent eval --action-repeat 1` does).
+                progress.note(&format!(
+                    "the agent decided every {} steps in training; it is asked at every log frame, its frames {} steps apart",
+                    config.action_repeat,
+                    config.frame_steps.unwrap_or(config.action_repeat)
+                ));
+                config = config.deciding_every(1);
+            }
             refuse_unprojectable(&config, &format!("the agent in {}", dir.display()))?;
             let network =
                 load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;

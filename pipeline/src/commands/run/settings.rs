@@ -132,13 +132,13 @@ impl ProfileSettings {
                 augment_copies: 7,
             },
             segmenter: SegmenterSettings {
-                settings: None,
+                settings: Some("configs/segmenter_generated_depth4_noaux.toml".into()),
                 epochs: 40,
                 max_minutes: 120.0,
-                size: 256,
-                crop: None,
-                width: 1.0,
-                batch_size: 8,
+                size: 384,
+                crop: Some(256),
+                width: 0.5,
+                batch_size: 4,
                 eval_images: 600,
             },
             agent: AgentSettings {
