@@ -58,7 +58,7 @@ fn every_tagged_ring_and_mini_roundabout_of_the_real_extracts() {
         let summary = summarize(&map);
         let dropped: BTreeSet<i64> = map.report.ways_missing_nodes.iter().copied().collect();
         let rings = entry["rings"].as_array().unwrap();
-        let (mut found, mut listed) = (0, 0);
+        let (mut found, mut listed, mut imported_broken) = (0, 0, 0);
         for ring in rings {
             let ways = ids(&ring["osm_way_ids"]);
             let complete =
@@ -68,15 +68,19 @@ fn every_tagged_ring_and_mini_roundabout_of_the_real_extracts() {
                 .values()
                 .find(|r| r.source == RoundaboutSource::Tagged && r.osm_way_ids == ways);
             if !complete {
-                assert!(ours.is_none(), "{file}: broken ring {ways:?} imported");
+                // Listed with a reason; imported only as far as its lanes still make a ring
+                // (a way ending inside another, say), and then listed as imported.
                 let problem = map
                     .report
                     .ring_problems
                     .iter()
-                    .find(|p| p.osm_way_ids == ways && !p.imported)
+                    .find(|p| p.osm_way_ids == ways)
                     .unwrap_or_else(|| panic!("{file}: broken ring {ways:?} not listed"));
                 assert!(!problem.reason.is_empty());
+                assert_eq!(problem.imported, ours.is_some(), "{file}: {problem:?}");
+                eprintln!("{file}: ring {ways:?} listed: {}", problem.reason);
                 listed += 1;
+                imported_broken += usize::from(ours.is_some());
                 continue;
             }
             let ours = ours.unwrap_or_else(|| panic!("{file}: ring {ways:?} not found"));
@@ -115,7 +119,11 @@ fn every_tagged_ring_and_mini_roundabout_of_the_real_extracts() {
             .values()
             .filter(|r| r.source == RoundaboutSource::Tagged)
             .count();
-        assert_eq!(tagged, found, "{file}: tagged roundabouts");
+        assert_eq!(
+            tagged,
+            found + imported_broken,
+            "{file}: tagged roundabouts"
+        );
         // Guessed rings are flagged and made of untagged ways only.
         let tagged_ways: BTreeSet<i64> =
             rings.iter().flat_map(|r| ids(&r["osm_way_ids"])).collect();
@@ -164,7 +172,7 @@ fn every_tagged_ring_and_mini_roundabout_of_the_real_extracts() {
             );
         }
         eprintln!(
-            "{file}: tagged rings {} in the reference, {found} found, {listed} listed with a reason; {guessed} guessed; mini-roundabouts {} found, {} listed, {} in the reference",
+            "{file}: tagged rings {} in the reference, {found} closed and complete found, {listed} others listed with a reason ({imported_broken} of them still imported); {guessed} guessed; mini-roundabouts {} found, {} listed, {} in the reference",
             rings.len(),
             minis.len(),
             listed_minis.len(),

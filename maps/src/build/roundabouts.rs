@@ -47,6 +47,8 @@ pub(crate) struct TaggedRing {
     pub roads: Vec<RoadId>,
     /// Why the ring cannot be a roundabout; None when it may be one.
     pub broken: Option<String>,
+    /// Problems that do not keep it from being a roundabout, listed with whether it is one.
+    pub warnings: Vec<String>,
 }
 
 /// The connections between lanes, both ways.
@@ -132,15 +134,18 @@ impl Builder<'_> {
                 } else {
                     RoundaboutKind::Roundabout
                 };
-                let broken = self
-                    .ring_closure_problem(&ways)
-                    .or_else(|| self.ring_roads_problem(&ways, &roads));
+                let (broken, mut warnings) = match self.ring_closure_problem(&ways) {
+                    Ok(warnings) => (self.ring_roads_problem(&ways, &roads), warnings),
+                    Err(reason) => (Some(reason), Vec::new()),
+                };
+                warnings.extend(self.lane_count_warnings(&ways));
                 TaggedRing {
                     source: RoundaboutSource::Tagged,
                     ways,
                     kind,
                     roads,
                     broken,
+                    warnings,
                 }
             })
             .collect();
@@ -153,36 +158,40 @@ impl Builder<'_> {
                     reason: reason.clone(),
                     imported: false,
                 });
-                continue;
-            }
-            for w in &ring.ways {
-                let Some(way) = self.osm.ways.get(w) else {
-                    continue;
-                };
-                for key in LANE_COUNT_KEYS {
-                    if let Some(v) = way.tags.get(key)
-                        && tags::parse_count(&way.tags, key).is_none()
-                    {
-                        self.map.report.ring_problems.push(RingProblem {
-                            osm_way_ids: ring.ways.clone(),
-                            osm_node_id: None,
-                            reason: format!(
-                                "way {w} has {key}={v}, not a lane count from 1 to 8; the road class's default lane count is used"
-                            ),
-                            imported: true,
-                        });
-                    }
-                }
             }
         }
         self.rings = rings;
     }
 
-    /// Why the OSM ways of a ring do not make one closed one-way loop, if they do not.
-    fn ring_closure_problem(&self, ways: &[i64]) -> Option<String> {
+    /// Lane count tags on the ring's ways that are not counts (the class default is used).
+    fn lane_count_warnings(&self, ways: &[i64]) -> Vec<String> {
+        let mut out = Vec::new();
+        for w in ways {
+            let Some(way) = self.osm.ways.get(w) else {
+                continue;
+            };
+            for key in LANE_COUNT_KEYS {
+                if let Some(v) = way.tags.get(key)
+                    && tags::parse_count(&way.tags, key).is_none()
+                {
+                    out.push(format!(
+                        "way {w} has {key}={v}, not a lane count from 1 to 8; the road class's default lane count is used"
+                    ));
+                }
+            }
+        }
+        out
+    }
+
+    /// Why the OSM ways of a ring cannot make a closed one-way loop (Err), or the ways that
+    /// do not chain into one closed ring but may still form one with the others (a way
+    /// starting or ending inside another, as a bypass or chord does).
+    fn ring_closure_problem(&self, ways: &[i64]) -> Result<Vec<String>, String> {
         let mut missing: Vec<String> = Vec::new();
         for w in ways {
-            let way = self.osm.ways.get(w)?;
+            let Some(way) = self.osm.ways.get(w) else {
+                return Err(format!("way {w} is not in the data"));
+            };
             let n = way
                 .nodes
                 .iter()
@@ -196,20 +205,32 @@ impl Builder<'_> {
             }
         }
         if !missing.is_empty() {
-            return Some(format!("ring nodes missing: {}", missing.join("; ")));
+            return Err(format!("ring nodes missing: {}", missing.join("; ")));
         }
-        // Ends of each way in its direction of travel: every end must start one way and end one.
+        // Ends of each way in its direction of travel. Where no ring way passes through an
+        // end node, the ways ending there must be as many as those starting there. (A way
+        // ending inside another, as a bypass lane does, is left to the lane-level check.)
+        let mut passed: BTreeSet<i64> = BTreeSet::new();
+        for w in ways {
+            let Some(way) = self.osm.ways.get(w) else {
+                return Err(format!("way {w} is not in the data"));
+            };
+            let n = way.nodes.len();
+            passed.extend(way.nodes.iter().take(n.saturating_sub(1)).skip(1).copied());
+        }
         let mut ends: BTreeMap<i64, (Vec<i64>, Vec<i64>)> = BTreeMap::new();
         for w in ways {
-            let way = self.osm.ways.get(w)?;
+            let Some(way) = self.osm.ways.get(w) else {
+                return Err(format!("way {w} is not in the data"));
+            };
             let (Some(&first), Some(&last)) = (way.nodes.first(), way.nodes.last()) else {
-                return Some(format!("way {w} has no nodes"));
+                return Err(format!("way {w} has no nodes"));
             };
             let (from, to) = match tags::oneway(&way.tags) {
                 tags::Oneway::Forward => (first, last),
                 tags::Oneway::Backward => (last, first),
                 tags::Oneway::No => {
-                    return Some(format!(
+                    return Err(format!(
                         "way {w} is tagged oneway=no: traffic on it is not one-way round the ring"
                     ));
                 }
@@ -220,6 +241,21 @@ impl Builder<'_> {
             ends.entry(from).or_default().1.push(*w);
             ends.entry(to).or_default().0.push(*w);
         }
+        let mut warnings = Vec::new();
+        for (node, (ins, outs)) in &ends {
+            if passed.contains(node) {
+                for (w, verb) in ins
+                    .iter()
+                    .map(|w| (w, "ends"))
+                    .chain(outs.iter().map(|w| (w, "starts")))
+                {
+                    warnings.push(format!(
+                        "way {w} {verb} at node {node}, inside another ring way: the ways do not chain into one closed ring"
+                    ));
+                }
+            }
+        }
+        ends.retain(|node, _| !passed.contains(node));
         for (node, (ins, outs)) in &ends {
             if ins.len() + outs.len() == 1 {
                 let (w, verb) = match (ins.first(), outs.first()) {
@@ -227,7 +263,7 @@ impl Builder<'_> {
                     (None, Some(w)) => (w, "starts"),
                     (None, None) => continue,
                 };
-                return Some(format!(
+                return Err(format!(
                     "not closed: way {w} {verb} at node {node}, where no other ring way continues it"
                 ));
             }
@@ -240,13 +276,13 @@ impl Builder<'_> {
                     (outs, "start")
                 };
                 let names: Vec<String> = list.iter().map(|w| format!("way {w}")).collect();
-                return Some(format!(
+                return Err(format!(
                     "a piece runs against the ring's direction: {} {verb} at node {node}",
                     names.join(" and ")
                 ));
             }
         }
-        None
+        Ok(warnings)
     }
 
     /// Why the ring's roads (after clipping and dropping degenerate pieces) do not close, if
@@ -272,7 +308,9 @@ impl Builder<'_> {
                 balance.entry(road.start_junction).or_default().0 += 1;
             }
         }
-        let open = balance.iter().find(|(_, (i, o))| i != o)?;
+        // A junction only entered or only left breaks the ring; other imbalances (bypass
+        // lanes) are left to the lane-level check.
+        let open = balance.iter().find(|(_, (i, o))| (*i == 0) != (*o == 0))?;
         let node = self
             .map
             .junctions
@@ -304,6 +342,7 @@ impl Builder<'_> {
                     kind: RoundaboutKind::Roundabout,
                     roads,
                     broken: None,
+                    warnings: Vec::new(),
                 });
             }
         }
@@ -442,8 +481,21 @@ impl Builder<'_> {
         }
         let graph = LaneGraph { next_of, prev_of };
         for ring in rings {
-            self.add_roundabout(&ring.roads, ring.source, ring.kind, &graph);
+            let imported = self.add_roundabout(&ring.roads, ring.source, ring.kind, &graph);
+            for reason in ring.warnings {
+                self.map.report.ring_problems.push(RingProblem {
+                    osm_way_ids: ring.ways.clone(),
+                    osm_node_id: None,
+                    reason,
+                    imported,
+                });
+            }
         }
+        // Stable: the problems of one ring stay in the order they were found.
+        self.map
+            .report
+            .ring_problems
+            .sort_by(|a, b| a.osm_way_ids.cmp(&b.osm_way_ids));
     }
 
     /// Records every `highway=mini_roundabout` node at a junction of the map with the roads
@@ -739,13 +791,14 @@ impl Builder<'_> {
         }
     }
 
+    /// Adds one roundabout; false (and the reason listed) when its lanes do not make one.
     fn add_roundabout(
         &mut self,
         ring: &[RoadId],
         source: RoundaboutSource,
         kind: RoundaboutKind,
         graph: &LaneGraph,
-    ) {
+    ) -> bool {
         let LaneGraph { next_of, prev_of } = graph;
         let mut osm_way_ids: Vec<i64> = ring
             .iter()
@@ -774,7 +827,7 @@ impl Builder<'_> {
                 format!("the ring's lanes are not strongly connected: lane {stuck} (way {way:?}) lies on no directed cycle round the ring; not imported as a roundabout"),
                 false,
             );
-            return;
+            return false;
         }
         let Some(cycle) = self.lane_cycle(ring) else {
             self.ring_problem(
@@ -783,7 +836,7 @@ impl Builder<'_> {
                 "no trip round the ring keeps to its lanes; not imported as a roundabout".into(),
                 false,
             );
-            return;
+            return false;
         };
         let id = RoundaboutId(self.map.roundabouts.len() as u32);
         let ring_set: BTreeSet<RoadId> = ring.iter().copied().collect();
@@ -906,6 +959,7 @@ impl Builder<'_> {
                 clockwise: signed_area(&points) < 0.0,
             },
         );
+        true
     }
 
     /// A line across a group of side-by-side lanes at arc length `s` of each (None: their ends).
