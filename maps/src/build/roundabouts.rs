@@ -208,8 +208,9 @@ impl Builder<'_> {
             return Err(format!("ring nodes missing: {}", missing.join("; ")));
         }
         // Ends of each way in its direction of travel. Where no ring way passes through an
-        // end node, the ways ending there must be as many as those starting there. (A way
-        // ending inside another, as a bypass lane does, is left to the lane-level check.)
+        // end node, some way must end there and some way start there. (A way ending inside
+        // another, or more ways ending than starting at a node, as with a bypass lane, is
+        // left to the lane-level check.)
         let mut passed: BTreeSet<i64> = BTreeSet::new();
         for w in ways {
             let Some(way) = self.osm.ways.get(w) else {
@@ -236,6 +237,8 @@ impl Builder<'_> {
                 }
             };
             if from == to {
+                // A closed way passes through its own end node.
+                passed.insert(from);
                 continue;
             }
             ends.entry(from).or_default().1.push(*w);
@@ -269,8 +272,15 @@ impl Builder<'_> {
             }
         }
         for (node, (ins, outs)) in &ends {
-            if ins.len() != outs.len() {
-                let (list, verb) = if ins.len() > outs.len() {
+            if ins.len() != outs.len() && !ins.is_empty() && !outs.is_empty() {
+                warnings.push(format!(
+                    "{} ways end and {} start at node {node}: the ways do not chain into one closed ring",
+                    ins.len(),
+                    outs.len()
+                ));
+            }
+            if ins.is_empty() || outs.is_empty() {
+                let (list, verb) = if outs.is_empty() {
                     (ins, "end")
                 } else {
                     (outs, "start")
@@ -1421,5 +1431,34 @@ mod tests {
         );
         assert_eq!(s.ring_problems.len(), 1);
         assert_eq!(s.ring_problems[0].osm_node_id, Some(12));
+    }
+    #[test]
+    fn a_chord_across_a_ring_is_listed_and_the_ring_still_imported() {
+        // A one-way chord from ring node 1 (the closed way's end) to ring node 5, tagged too.
+        let xml = loop_with_arms(
+            &circle(25.0, 12),
+            &[0, 4, 8],
+            "<tag k=\"junction\" v=\"roundabout\"/>",
+        )
+        .replace(
+            "</osm>",
+            "<way id=\"3\"><nd ref=\"1\"/><nd ref=\"5\"/><tag k=\"highway\" v=\"residential\"/><tag k=\"junction\" v=\"roundabout\"/></way>\n</osm>",
+        );
+        let map = import(&xml);
+        assert_eq!(tagged(&map), 1, "{:?}", problems(&map));
+        assert_eq!(
+            map.roundabouts
+                .values()
+                .next()
+                .map(|r| r.osm_way_ids.clone()),
+            Some(vec![1, 3])
+        );
+        let p = problems(&map);
+        assert!(
+            !p.is_empty()
+                && p.iter()
+                    .all(|(ways, imported, _)| *ways == [1, 3] && *imported),
+            "{p:?}"
+        );
     }
 }
