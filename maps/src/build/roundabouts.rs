@@ -13,8 +13,8 @@ use std::f64::consts::PI;
 
 use crate::geometry::{Point, polyline_length, signed_area};
 use crate::model::{
-    Connection, ConnectionId, Direction, JunctionId, LaneId, MiniRoundabout, PrioritySource,
-    RingProblem, RoadId, Roundabout, RoundaboutArm, RoundaboutId, RoundaboutKind,
+    Connection, ConnectionId, Direction, DrivingSide, JunctionId, LaneId, MiniRoundabout,
+    PrioritySource, RingProblem, RoadId, Roundabout, RoundaboutArm, RoundaboutId, RoundaboutKind,
     RoundaboutPriority, RoundaboutSource, StopKind, StopLine, StopLineId, StopLineSource, Turn,
 };
 use crate::tags;
@@ -382,36 +382,107 @@ impl Builder<'_> {
             .flat_map(|r| [r.start_junction, r.end_junction])
             .collect();
         let mut added: Vec<Connection> = Vec::new();
+        let left_hand = self.map.driving_side == DrivingSide::Left;
+        // Turning into and out of the ring: right on an anticlockwise ring, left on a clockwise one.
+        let arm_turn = if clockwise { Turn::Left } else { Turn::Right };
         for j in junctions {
-            // Ring lanes arriving at and leaving `j`, per road and direction, inner lane first.
-            let mut arriving: BTreeMap<(RoadId, Direction), Vec<(u8, LaneId)>> = BTreeMap::new();
-            let mut leaving: BTreeMap<(RoadId, Direction), Vec<(u8, LaneId)>> = BTreeMap::new();
+            // Lanes arriving at and leaving `j`, per road and direction, ring and arms apart,
+            // as (position from the left in the direction of travel, lane).
+            type Groups = BTreeMap<(RoadId, Direction), Vec<(u8, LaneId)>>;
+            let (mut arriving, mut leaving) = (Groups::new(), Groups::new());
+            let (mut entering, mut exiting) = (Groups::new(), Groups::new());
             for lane in self.lanes_at(j) {
-                if !ring_set.contains(&lane.road) {
+                let Some(road) = self.map.roads.get(&lane.road) else {
+                    continue;
+                };
+                let on_ring = ring_set.contains(&lane.road);
+                if !on_ring && !road.allows_cars {
                     continue;
                 }
+                // Index 0 is next to the centre line: the left edge of a one-way road, and of
+                // a two-way road's lanes where traffic keeps right.
+                let from_left = if !road.is_oneway() && left_hand {
+                    u8::MAX - lane.index_from_centre
+                } else {
+                    lane.index_from_centre
+                };
                 let key = (lane.road, lane.direction);
                 if lane.to_junction == j {
-                    arriving
-                        .entry(key)
-                        .or_default()
-                        .push((lane.index_from_centre, lane.id));
+                    let groups = if on_ring {
+                        &mut arriving
+                    } else {
+                        &mut entering
+                    };
+                    groups.entry(key).or_default().push((from_left, lane.id));
                 }
                 if lane.from_junction == j {
-                    leaving
-                        .entry(key)
-                        .or_default()
-                        .push((lane.index_from_centre, lane.id));
+                    let groups = if on_ring { &mut leaving } else { &mut exiting };
+                    groups.entry(key).or_default().push((from_left, lane.id));
                 }
             }
+            // The inside of an anticlockwise ring is on the left; the outer lanes, and the
+            // arms' kerb-side lanes, come last.
             let inner_first = |mut v: Vec<(u8, LaneId)>| -> Vec<LaneId> {
                 v.sort_unstable();
-                // Index 0 is the left edge of a one-way road: inside on an anticlockwise ring.
                 if clockwise {
                     v.reverse();
                 }
                 v.into_iter().map(|(_, l)| l).collect()
             };
+            let add = |f: LaneId,
+                       t: LaneId,
+                       turn: Turn,
+                       existing: &mut BTreeSet<(LaneId, LaneId)>,
+                       added: &mut Vec<Connection>| {
+                if existing.insert((f, t)) {
+                    let centre = self.connection_curve(f, t);
+                    added.push(Connection {
+                        id: ConnectionId(0),
+                        junction: j,
+                        from: f,
+                        to: t,
+                        turn,
+                        length_m: polyline_length(&centre),
+                        centre,
+                    });
+                }
+            };
+            // Every entry lane onto the ring and every exit lane from it, lane to lane from the
+            // outer side, where no connection of the turns already does so.
+            for a in entering.values() {
+                let from = inner_first(a.clone());
+                for b in leaving.values() {
+                    let to = inner_first(b.clone());
+                    let linked: Vec<bool> = from
+                        .iter()
+                        .map(|f| to.iter().any(|t| existing.contains(&(*f, *t))))
+                        .collect();
+                    for (f, t) in outer_aligned(&from, &to) {
+                        if from
+                            .iter()
+                            .position(|x| *x == f)
+                            .is_some_and(|i| !linked[i])
+                        {
+                            add(f, t, arm_turn, existing, &mut added);
+                        }
+                    }
+                }
+            }
+            for b in exiting.values() {
+                let to = inner_first(b.clone());
+                for a in arriving.values() {
+                    let from = inner_first(a.clone());
+                    let linked: Vec<bool> = to
+                        .iter()
+                        .map(|t| from.iter().any(|f| existing.contains(&(*f, *t))))
+                        .collect();
+                    for (f, t) in outer_aligned(&from, &to) {
+                        if to.iter().position(|x| *x == t).is_some_and(|i| !linked[i]) {
+                            add(f, t, arm_turn, existing, &mut added);
+                        }
+                    }
+                }
+            }
             for (a_key, a) in &arriving {
                 for (b_key, b) in &leaving {
                     if a_key.0 == b_key.0 {
@@ -420,18 +491,7 @@ impl Builder<'_> {
                     let from = inner_first(a.clone());
                     let to = inner_first(b.clone());
                     for (f, t) in ring_lane_pairs(&from, &to) {
-                        if existing.insert((f, t)) {
-                            let centre = self.connection_curve(f, t);
-                            added.push(Connection {
-                                id: ConnectionId(0),
-                                junction: j,
-                                from: f,
-                                to: t,
-                                turn: Turn::Straight,
-                                length_m: polyline_length(&centre),
-                                centre,
-                            });
-                        }
+                        add(f, t, Turn::Straight, existing, &mut added);
                     }
                 }
             }
@@ -1030,6 +1090,19 @@ fn ring_lane_pairs(from: &[LaneId], to: &[LaneId]) -> Vec<(LaneId, LaneId)> {
     pairs.into_iter().collect()
 }
 
+/// Lane to lane from the outer side (the last of each list): extra lanes on either side
+/// share the innermost lane of the other.
+fn outer_aligned(from: &[LaneId], to: &[LaneId]) -> Vec<(LaneId, LaneId)> {
+    let (nf, nt) = (from.len(), to.len());
+    (0..nf.max(nt))
+        .filter_map(|k| {
+            let f = from.get(nf.checked_sub(1 + k.min(nf.checked_sub(1)?))?)?;
+            let t = to.get(nt.checked_sub(1 + k.min(nt.checked_sub(1)?))?)?;
+            Some((*f, *t))
+        })
+        .collect()
+}
+
 /// A lane of `lanes` that is not on a directed cycle through all of them (None when they
 /// are strongly connected through the connections `next_of` / `prev_of`).
 fn not_strongly_connected(
@@ -1259,11 +1332,18 @@ mod tests {
 
     #[test]
     fn a_two_lane_ring_is_one_roundabout_with_strongly_connected_lanes() {
-        let map = import(&loop_with_arms(
-            &circle(25.0, 12),
-            &[0, 4, 8],
-            "<tag k=\"junction\" v=\"roundabout\"/><tag k=\"lanes\" v=\"2\"/>",
-        ));
+        // Two lanes on the ring, two each way on the arms.
+        let map = import(
+            &loop_with_arms(
+                &circle(25.0, 12),
+                &[0, 4, 8],
+                "<tag k=\"junction\" v=\"roundabout\"/><tag k=\"lanes\" v=\"2\"/>",
+            )
+            .replace(
+                "v=\"residential\"/></way>",
+                "v=\"residential\"/><tag k=\"lanes\" v=\"4\"/></way>",
+            ),
+        );
         assert_eq!(tagged(&map), 1, "{:?}", problems(&map));
         let r = map.roundabouts.values().next().expect("one");
         assert_eq!(r.lanes_across, 2);
@@ -1274,6 +1354,31 @@ mod tests {
         );
         assert_eq!(r.ring_lanes.len(), 2 * r.roads.len());
         assert_eq!((r.entries.len(), r.exits.len()), (3, 3));
+        // Every lane of every entry leads onto the ring, every lane of every exit is reached
+        // from it.
+        let onto_ring = |from: &LaneId, to: &LaneId| {
+            map.connections
+                .values()
+                .any(|c| c.from == *from && c.to == *to)
+        };
+        for arm in &r.entries {
+            assert_eq!(arm.lanes.len(), 2);
+            for l in &arm.lanes {
+                assert!(
+                    r.ring_lanes.iter().any(|x| onto_ring(l, x)),
+                    "entry lane {l}"
+                );
+            }
+        }
+        for arm in &r.exits {
+            assert_eq!(arm.lanes.len(), 2);
+            for l in &arm.lanes {
+                assert!(
+                    r.ring_lanes.iter().any(|x| onto_ring(x, l)),
+                    "exit lane {l}"
+                );
+            }
+        }
         // Every entry reaches every exit through the ring.
         let next = map.outgoing();
         for entry in &r.entries {
