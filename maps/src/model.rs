@@ -226,7 +226,8 @@ pub enum RoundaboutPriority {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PrioritySource {
-    /// `priority_road` on the ring, give-way / stop signs or traffic signals in the data.
+    /// `priority_road` / `priority` on the ring, give-way / stop signs or traffic signals in
+    /// the data.
     Tags,
     /// Nothing in the data says; the roundabout rule is assumed.
     #[default]

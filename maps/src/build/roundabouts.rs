@@ -657,9 +657,9 @@ impl Builder<'_> {
     }
 
     /// Priority from the data: traffic signals, or give-way / stop signs inside the ring's
-    /// ways, make entering traffic go first; `priority_road=yes|designated` on the ring or
-    /// give-way / stop signs on the entries make circulating traffic go first. Otherwise the
-    /// roundabout rule is assumed.
+    /// ways, make entering traffic go first; `priority_road` or `priority` = `yes|designated`
+    /// on the ring, or give-way / stop signs on the entries, make circulating traffic go
+    /// first. Otherwise the roundabout rule is assumed.
     fn priority(&self, ring: &[RoadId], arms: &Arms) -> (RoundaboutPriority, PrioritySource) {
         let node_highway = |n: &i64| self.osm.nodes.get(n).and_then(|x| x.tags.get("highway"));
         let ring_nodes: BTreeSet<i64> = ring
@@ -679,10 +679,11 @@ impl Builder<'_> {
         if ring_signals || ring_signs {
             return (RoundaboutPriority::Entering, PrioritySource::Tags);
         }
-        let ring_priority = ring
-            .iter()
-            .filter_map(|r| self.info.get(r))
-            .any(|i| i.tags.is_any("priority_road", &["yes", "designated"]));
+        let ring_priority = ring.iter().filter_map(|r| self.info.get(r)).any(|i| {
+            ["priority_road", "priority"]
+                .iter()
+                .any(|k| i.tags.is_any(k, &["yes", "designated"]))
+        });
         // Signs along each entry road, up to and including its node at the ring (not the
         // far end, which belongs to another junction).
         let entry_signs = arms.entries.iter().any(|a| {
@@ -1565,5 +1566,28 @@ mod tests {
                     .all(|(ways, imported, _)| *ways == [1, 3] && *imported),
             "{p:?}"
         );
+    }
+    #[test]
+    fn traffic_signals_on_the_ring_give_entering_traffic_priority() {
+        let xml = loop_with_arms(
+            &circle(20.0, 12),
+            &[0, 4, 8],
+            "<tag k=\"junction\" v=\"roundabout\"/>",
+        );
+        let at = xml.find("<node id=\"5\"").unwrap_or(0);
+        let end = at + xml[at..].find("/>").unwrap_or(0);
+        let xml = format!(
+            "{}><tag k=\"highway\" v=\"traffic_signals\"/></node>{}",
+            &xml[..end],
+            &xml[end + 2..]
+        );
+        let map = import(&xml);
+        let r = map.roundabouts.values().next().expect("one");
+        assert_eq!(
+            (r.priority, r.priority_source),
+            (RoundaboutPriority::Entering, PrioritySource::Tags)
+        );
+        // The give-way lines stay on the entries.
+        assert_eq!(r.yield_lines.len(), r.entries.len());
     }
 }
