@@ -4,9 +4,9 @@
 //! usable ring are joined lane to lane, each lane also to the lanes beside it
 //! (`connect_rings`); then every ring whose lanes are strongly connected becomes a
 //! roundabout with its entries, exits, priority and a give-way line on every entry
-//! (`find_roundabouts`). `highway=mini_roundabout` nodes are
-//! recorded with the roads meeting there (`find_mini_roundabouts`). Rings that cannot be
-//! used are listed in the report with the reason, and their roads stay ordinary roads.
+//! (`find_roundabouts`). `highway=mini_roundabout` nodes are recorded with the roads meeting
+//! there (`find_mini_roundabouts`). Rings that cannot be used are listed in the report with
+//! the reason, and their roads stay ordinary roads.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::f64::consts::PI;
@@ -38,7 +38,7 @@ const LANE_COUNT_KEYS: &[&str] = &["lanes", "lanes:forward", "lanes:backward"];
 /// One group of tagged ring ways (sharing nodes), as `find_rings` found it, or a guessed
 /// loop (`connect_rings`).
 #[derive(Debug, Clone)]
-pub(crate) struct TaggedRing {
+pub(crate) struct Ring {
     pub source: RoundaboutSource,
     /// The ring's OSM ways, sorted.
     pub ways: Vec<i64>,
@@ -113,7 +113,7 @@ impl Builder<'_> {
                 roads_of_way.entry(*w).or_default().push(road.id);
             }
         }
-        let mut rings: Vec<TaggedRing> = groups
+        let mut rings: Vec<Ring> = groups
             .into_values()
             .map(|mut ways| {
                 ways.sort_unstable();
@@ -139,7 +139,7 @@ impl Builder<'_> {
                     Err(reason) => (Some(reason), Vec::new()),
                 };
                 warnings.extend(self.lane_count_warnings(&ways));
-                TaggedRing {
+                Ring {
                     source: RoundaboutSource::Tagged,
                     ways,
                     kind,
@@ -346,7 +346,7 @@ impl Builder<'_> {
                     .collect();
                 ways.sort_unstable();
                 ways.dedup();
-                self.rings.push(TaggedRing {
+                self.rings.push(Ring {
                     source: RoundaboutSource::Guessed,
                     ways,
                     kind: RoundaboutKind::Roundabout,
@@ -537,7 +537,7 @@ impl Builder<'_> {
     /// Makes a roundabout of every usable tagged ring and guessed loop; a ring whose lanes do not form strongly connected lanes reaching every exit is
     /// listed in the report instead.
     pub fn find_roundabouts(&mut self) {
-        let rings: Vec<TaggedRing> = self
+        let rings: Vec<Ring> = self
             .rings
             .iter()
             .filter(|r| r.broken.is_none())

@@ -52,7 +52,7 @@ pub(crate) struct Builder<'a> {
     pub info: BTreeMap<RoadId, RoadInfo<'a>>,
     pub junction_of_node: BTreeMap<i64, JunctionId>,
     /// Tagged rings found by `find_rings`, in order of their ways, then the guessed loops.
-    pub rings: Vec<super::roundabouts::TaggedRing>,
+    pub rings: Vec<super::roundabouts::Ring>,
 }
 
 impl<'a> Builder<'a> {
