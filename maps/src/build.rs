@@ -186,8 +186,14 @@ fn build_osm_map(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError
     b.check("connect_lanes")?;
     b.apply_turn_restrictions();
     b.check("apply_turn_restrictions")?;
+    b.find_rings();
+    b.check("find_rings")?;
+    b.connect_rings();
+    b.check("connect_rings")?;
     b.find_roundabouts();
     b.check("find_roundabouts")?;
+    b.find_mini_roundabouts();
+    b.check("find_mini_roundabouts")?;
     b.place_stop_lines();
     b.check("place_stop_lines")?;
     b.paint_markings();

@@ -3,12 +3,15 @@
 //! Checked: every reference points at an existing element; lanes have positive length and
 //! finite geometry; each connection joins the end of its `from` lane to the start of its `to`
 //! lane at its junction; the circulating lanes of a roundabout form one directed cycle
-//! through the connections; stop lines lie on existing lanes.
+//! through the connections; the ring lanes of a roundabout imported from OSM ways are
+//! strongly connected, every entry leads onto them and every exit is reached from them (so
+//! from every entry every exit is reachable); mini-roundabouts stand on existing junctions
+//! with arms on existing lanes there; stop lines lie on existing lanes.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 
 use crate::error::MapError;
-use crate::model::Map;
+use crate::model::{LaneId, Map, RoundaboutSource};
 
 fn fail(step: &'static str, message: String) -> Result<(), MapError> {
     Err(MapError::Invariant { step, message })
@@ -115,6 +118,17 @@ pub fn check_invariants(map: &Map, step: &'static str) -> Result<(), MapError> {
             return fail(step, format!("connection {id} has degenerate geometry"));
         }
     }
+    let links: BTreeSet<(LaneId, LaneId)> = if map.roundabouts.is_empty() {
+        BTreeSet::new()
+    } else {
+        map.connections.values().map(|c| (c.from, c.to)).collect()
+    };
+    let mut next_of: BTreeMap<LaneId, Vec<LaneId>> = BTreeMap::new();
+    let mut prev_of: BTreeMap<LaneId, Vec<LaneId>> = BTreeMap::new();
+    for (a, b) in &links {
+        next_of.entry(*a).or_default().push(*b);
+        prev_of.entry(*b).or_default().push(*a);
+    }
     for (id, r) in &map.roundabouts {
         let lanes = &r.circulating_lanes;
         if lanes.is_empty() {
@@ -129,7 +143,7 @@ pub fn check_invariants(map: &Map, step: &'static str) -> Result<(), MapError> {
         }
         for (i, a) in lanes.iter().enumerate() {
             let b = lanes[(i + 1) % lanes.len()];
-            if !map.connections.values().any(|c| c.from == *a && c.to == b) {
+            if !links.contains(&(*a, b)) {
                 return fail(
                     step,
                     format!(
@@ -148,11 +162,102 @@ pub fn check_invariants(map: &Map, step: &'static str) -> Result<(), MapError> {
                 );
             }
         }
+        if matches!(
+            r.source,
+            RoundaboutSource::Tagged | RoundaboutSource::Guessed
+        ) {
+            let ring: BTreeSet<LaneId> = r.ring_lanes.iter().copied().collect();
+            for (step_of, way) in [(&next_of, "leads to"), (&prev_of, "is reached from")] {
+                let Some(&start) = r.ring_lanes.first() else {
+                    break;
+                };
+                let mut seen = BTreeSet::from([start]);
+                let mut stack = vec![start];
+                while let Some(l) = stack.pop() {
+                    for n in step_of.get(&l).into_iter().flatten() {
+                        if ring.contains(n) && seen.insert(*n) {
+                            stack.push(*n);
+                        }
+                    }
+                }
+                if let Some(missed) = r.ring_lanes.iter().find(|l| !seen.contains(l)) {
+                    return fail(
+                        step,
+                        format!(
+                            "roundabout {id}: ring lane {start} {way} no path to ring lane {missed}: the ring lanes are not strongly connected"
+                        ),
+                    );
+                }
+            }
+            for arm in &r.entries {
+                let onto = arm.lanes.iter().any(|l| {
+                    next_of
+                        .get(l)
+                        .is_some_and(|n| n.iter().any(|x| ring.contains(x)))
+                });
+                if !onto {
+                    return fail(
+                        step,
+                        format!(
+                            "roundabout {id}: the entry on road {} leads onto no ring lane",
+                            arm.road
+                        ),
+                    );
+                }
+            }
+            for arm in &r.exits {
+                let from_ring = arm.lanes.iter().any(|l| {
+                    prev_of
+                        .get(l)
+                        .is_some_and(|p| p.iter().any(|x| ring.contains(x)))
+                });
+                if !from_ring {
+                    return fail(
+                        step,
+                        format!(
+                            "roundabout {id}: the exit on road {} is reached from no ring lane",
+                            arm.road
+                        ),
+                    );
+                }
+            }
+        }
         for s in &r.yield_lines {
             if !map.stop_lines.contains_key(s) {
                 return fail(
                     step,
                     format!("roundabout {id} lists missing yield line {s}"),
+                );
+            }
+        }
+    }
+    for (id, m) in &map.mini_roundabouts {
+        if map.roundabouts.contains_key(id) {
+            return fail(
+                step,
+                format!("mini-roundabout {id} shares its id with a ring"),
+            );
+        }
+        let Some(j) = map.junctions.get(&m.junction) else {
+            return fail(
+                step,
+                format!(
+                    "mini-roundabout {id} (node {}) stands on missing junction {}",
+                    m.osm_node_id, m.junction
+                ),
+            );
+        };
+        for arm in m.entries.iter().chain(&m.exits) {
+            if arm.junction != m.junction
+                || !j.roads.contains(&arm.road)
+                || arm.lanes.iter().any(|l| !map.lanes.contains_key(l))
+            {
+                return fail(
+                    step,
+                    format!(
+                        "mini-roundabout {id} (node {}) has an arm on road {} that does not meet it",
+                        m.osm_node_id, arm.road
+                    ),
                 );
             }
         }

@@ -29,9 +29,9 @@ use crate::graph::{component_of, strongly_connected_components};
 use crate::invariants::check_invariants;
 use crate::model::{
     Connection, ConnectionId, Direction, DrivingSide, ImportReport, Junction, JunctionId,
-    JunctionKind, Lane, LaneId, Map, Marking, MarkingKind, Road, RoadId, RoadSource, Roundabout,
-    RoundaboutArm, RoundaboutId, RoundaboutSource, StopKind, StopLine, StopLineId, StopLineSource,
-    Turn,
+    JunctionKind, Lane, LaneId, Map, Marking, MarkingKind, PrioritySource, Road, RoadId,
+    RoadSource, Roundabout, RoundaboutArm, RoundaboutId, RoundaboutKind, RoundaboutPriority,
+    RoundaboutSource, StopKind, StopLine, StopLineId, StopLineSource, Turn,
 };
 use crate::osm::{MemberKind, OsmData, OsmRelation, Tags};
 use crate::projection::{LatLon, Projection, Projector};
@@ -1448,6 +1448,11 @@ fn build_roundabout<'a>(
     Some(Roundabout {
         id,
         source: RoundaboutSource::Lanelet2,
+        kind: RoundaboutKind::Roundabout,
+        // Lanelet2 roundabouts are found from their `right_of_way` elements, which say
+        // that the ring has priority.
+        priority: RoundaboutPriority::Circulating,
+        priority_source: PrioritySource::Tags,
         osm_way_ids: osm_way_ids.into_iter().collect(),
         roads: ring.iter().map(|&i| road_id(i)).collect(),
         circulating_lanes: primary.iter().map(|&i| lane_id(i)).collect(),

@@ -12,7 +12,7 @@ use crate::geometry::Point;
 use crate::projection::Projection;
 
 /// Version of the native map file format; bump on any incompatible change.
-pub const MAP_FORMAT_VERSION: u32 = 1;
+pub const MAP_FORMAT_VERSION: u32 = 2;
 
 macro_rules! typed_id {
     ($($(#[$doc:meta])* $name:ident),* $(,)?) => {$(
@@ -197,10 +197,50 @@ pub enum RoundaboutSource {
     Lanelet2,
 }
 
+/// What kind of ring a roundabout is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RoundaboutKind {
+    /// `junction=roundabout`, a guessed loop, or a Lanelet2 ring.
+    #[default]
+    Roundabout,
+    /// `junction=circular`: a ring where circulating traffic need not have priority.
+    Circular,
+    /// A `highway=mini_roundabout` node (see [`MiniRoundabout`]).
+    MiniRoundabout,
+}
+
+/// Who gives way where a roundabout's entry meets its ring.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RoundaboutPriority {
+    /// Entering traffic gives way to traffic on the ring (the roundabout rule).
+    #[default]
+    Circulating,
+    /// Traffic on the ring gives way to entering traffic (give-way or stop signs on the
+    /// ring, or traffic signals on its nodes).
+    Entering,
+}
+
+/// Where a roundabout's [`RoundaboutPriority`] comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PrioritySource {
+    /// `priority_road` / `priority` on the ring, give-way / stop signs or traffic signals in
+    /// the data.
+    Tags,
+    /// Nothing in the data says; the roundabout rule is assumed.
+    #[default]
+    Assumed,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Roundabout {
     pub id: RoundaboutId,
     pub source: RoundaboutSource,
+    pub kind: RoundaboutKind,
+    pub priority: RoundaboutPriority,
+    pub priority_source: PrioritySource,
     pub osm_way_ids: Vec<i64>,
     pub roads: Vec<RoadId>,
     /// One trip round the ring: circulating lanes, each followed (through a connection)
@@ -212,10 +252,45 @@ pub struct Roundabout {
     pub lanes_across: u8,
     pub entries: Vec<RoundaboutArm>,
     pub exits: Vec<RoundaboutArm>,
+    /// A give-way line on every entry where it meets the ring (OSM rings: whatever
+    /// `priority` says).
     pub yield_lines: Vec<StopLineId>,
     pub centre: Point,
     pub radius_m: f64,
     pub clockwise: bool,
+}
+
+/// A `highway=mini_roundabout` node: the roads meeting there are driven round a painted
+/// (or slightly raised) centre, without a ring of lanes of its own.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MiniRoundabout {
+    /// Numbered after the rings of [`Map::roundabouts`], so summary ids stay distinct.
+    pub id: RoundaboutId,
+    pub osm_node_id: i64,
+    pub junction: JunctionId,
+    /// Per road, its lanes running into the node.
+    pub entries: Vec<RoundaboutArm>,
+    /// Per road, its lanes leaving the node.
+    pub exits: Vec<RoundaboutArm>,
+    pub priority: RoundaboutPriority,
+    pub priority_source: PrioritySource,
+}
+
+/// A tagged ring (or mini-roundabout node) with a problem: not closed, nodes missing from
+/// the extract, a piece against the ring's direction, an unusable `lanes` value, lanes that
+/// do not connect. Its roads are still imported as ordinary roads.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RingProblem {
+    /// The ring's OSM ways (sorted; empty for a mini-roundabout node).
+    pub osm_way_ids: Vec<i64>,
+    /// The mini-roundabout node, for a node problem.
+    #[serde(default)]
+    pub osm_node_id: Option<i64>,
+    /// What is wrong, naming the way or node.
+    pub reason: String,
+    /// True when the ring was still imported as a roundabout (e.g. an unusable `lanes`
+    /// value replaced by the class default).
+    pub imported: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -285,6 +360,9 @@ pub struct ImportReport {
     pub stop_nodes_unplaced: Vec<i64>,
     /// Free-form notes (e.g. a Lanelet2 element that was not understood).
     pub notes: Vec<String>,
+    /// Tagged rings and mini-roundabout nodes with a problem, in way-id order.
+    #[serde(default)]
+    pub ring_problems: Vec<RingProblem>,
 }
 
 /// A drivable map.
@@ -300,6 +378,9 @@ pub struct Map {
     pub junctions: BTreeMap<JunctionId, Junction>,
     pub connections: BTreeMap<ConnectionId, Connection>,
     pub roundabouts: BTreeMap<RoundaboutId, Roundabout>,
+    /// `highway=mini_roundabout` nodes, by id (numbered after the rings).
+    #[serde(default)]
+    pub mini_roundabouts: BTreeMap<RoundaboutId, MiniRoundabout>,
     pub stop_lines: BTreeMap<StopLineId, StopLine>,
     pub markings: Vec<Marking>,
     pub report: ImportReport,
@@ -317,6 +398,7 @@ impl Map {
             junctions: BTreeMap::new(),
             connections: BTreeMap::new(),
             roundabouts: BTreeMap::new(),
+            mini_roundabouts: BTreeMap::new(),
             stop_lines: BTreeMap::new(),
             markings: Vec::new(),
             report: ImportReport::default(),

@@ -11,7 +11,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::Point;
 use crate::graph::{lanes_length_m, strongly_connected_components};
-use crate::model::{DrivingSide, JunctionKind, Map, RoundaboutSource, StopKind};
+use crate::model::{
+    DrivingSide, JunctionKind, Map, PrioritySource, RingProblem, RoundaboutKind,
+    RoundaboutPriority, RoundaboutSource, StopKind,
+};
 use crate::projection::Projection;
 
 /// Rounds to two decimals (centimetres for metres).
@@ -51,8 +54,13 @@ pub struct MapSummary {
     pub stop_lines: BTreeMap<String, usize>,
     /// Strongly connected components of the car lane graph.
     pub components: ComponentsSummary,
-    /// Every roundabout, in id order.
+    /// Every roundabout, in id order: the rings, then the mini-roundabouts.
     pub roundabouts: Vec<RoundaboutSummary>,
+    /// Tagged rings and mini-roundabout nodes with a problem (not closed, nodes missing,
+    /// a piece against the ring's direction, an unusable `lanes` value, ...): `osm_way_ids`,
+    /// `osm_node_id` (mini-roundabouts), `reason` and whether the ring was still `imported`.
+    #[serde(default)]
+    pub ring_problems: Vec<RingProblem>,
     /// What the import skipped, as counts.
     pub skipped: SkippedSummary,
     /// The map's projection: `{"local": {"origin": {"lat", "lon"}}}` or `{"utm": {"origin", "zone"}}`.
@@ -97,8 +105,24 @@ pub struct RoundaboutSummary {
     pub guessed: bool,
     /// `tagged`, `guessed` or `lanelet2`.
     pub source: RoundaboutSource,
-    /// The OSM ways forming the ring (Lanelet2: the lanelets' bound ways).
+    /// `roundabout`, `circular` (`junction=circular`) or `mini_roundabout`.
+    #[serde(default)]
+    pub kind: RoundaboutKind,
+    /// Most lanes side by side on any piece of the ring (0 for a mini-roundabout).
+    #[serde(default)]
+    pub ring_lanes: u8,
+    /// Who goes first where an entry meets the ring: `circulating` or `entering`.
+    #[serde(default)]
+    pub priority: RoundaboutPriority,
+    /// `tags` when the data says so, `assumed` when the roundabout rule is taken.
+    #[serde(default)]
+    pub priority_source: PrioritySource,
+    /// The OSM ways forming the ring (Lanelet2: the lanelets' bound ways; empty for a
+    /// mini-roundabout).
     pub osm_way_ids: Vec<i64>,
+    /// The `highway=mini_roundabout` node, for a mini-roundabout.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub osm_node_id: Option<i64>,
     /// Centre of the ring in map metres.
     pub centre: Point,
     /// Mean radius of the ring, metres.
@@ -177,11 +201,40 @@ pub fn summarize(map: &Map) -> MapSummary {
             circulating_lanes: r.circulating_lanes.len(),
             guessed: r.source == RoundaboutSource::Guessed,
             source: r.source,
+            kind: r.kind,
+            ring_lanes: r.lanes_across,
+            priority: r.priority,
+            priority_source: r.priority_source,
             osm_way_ids: r.osm_way_ids.clone(),
+            osm_node_id: None,
             centre: r2p(r.centre),
             radius_m: r2(r.radius_m),
             clockwise: r.clockwise,
         })
+        .chain(map.mini_roundabouts.values().map(|m| {
+            RoundaboutSummary {
+                id: m.id.0,
+                entries: m.entries.len(),
+                exits: m.exits.len(),
+                yield_lines: 0,
+                circulating_lanes: 0,
+                guessed: false,
+                source: RoundaboutSource::Tagged,
+                kind: RoundaboutKind::MiniRoundabout,
+                ring_lanes: 0,
+                priority: m.priority,
+                priority_source: m.priority_source,
+                osm_way_ids: Vec::new(),
+                osm_node_id: Some(m.osm_node_id),
+                centre: r2p(map
+                    .junctions
+                    .get(&m.junction)
+                    .map_or_else(Point::default, |j| j.point)),
+                radius_m: 0.0,
+                // Driven round anticlockwise where traffic keeps right, clockwise where it keeps left.
+                clockwise: map.driving_side == DrivingSide::Left,
+            }
+        }))
         .collect();
     let rep = &map.report;
     let skipped = SkippedSummary {
@@ -215,6 +268,7 @@ pub fn summarize(map: &Map) -> MapSummary {
         stop_lines,
         components,
         roundabouts,
+        ring_problems: rep.ring_problems.clone(),
         skipped,
         projection: map.projection,
         driving_side: map.driving_side,

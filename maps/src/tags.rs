@@ -66,7 +66,8 @@ pub fn is_roundabout(tags: &Tags) -> bool {
     tags.is_any("junction", &["roundabout", "circular"])
 }
 
-fn parse_count(tags: &Tags, key: &str) -> Option<u8> {
+/// A lane count tag (`lanes`, `lanes:forward`, ...) when it is a usable number (1 to 8).
+pub fn parse_count(tags: &Tags, key: &str) -> Option<u8> {
     let v = tags.get(key)?;
     // "2;3" (disagreeing mappers) takes the first; absurd values are ignored.
     let n: u8 = v.split(';').next()?.trim().parse().ok()?;

@@ -187,7 +187,7 @@ impl Builder<'_> {
     }
 
     /// A cubic Bézier from the end of `from` to the start of `to`, tangent to both.
-    fn connection_curve(&self, from: LaneId, to: LaneId) -> Vec<Point> {
+    pub(super) fn connection_curve(&self, from: LaneId, to: LaneId) -> Vec<Point> {
         let (Some(a), Some(b)) = (self.map.lanes.get(&from), self.map.lanes.get(&to)) else {
             return vec![Point::default(); 2];
         };

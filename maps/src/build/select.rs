@@ -51,6 +51,8 @@ pub(crate) struct Builder<'a> {
     pub map: Map,
     pub info: BTreeMap<RoadId, RoadInfo<'a>>,
     pub junction_of_node: BTreeMap<i64, JunctionId>,
+    /// Tagged rings found by `find_rings`, in order of their ways, then the guessed loops.
+    pub rings: Vec<super::roundabouts::Ring>,
 }
 
 impl<'a> Builder<'a> {
@@ -160,6 +162,12 @@ impl<'a> Builder<'a> {
             split.insert(r[0]);
             split.insert(r[r.len() - 1]);
         }
+        // A mini-roundabout is a junction even where only one way passes through it.
+        split.extend(uses.keys().copied().filter(|n| {
+            osm.nodes
+                .get(n)
+                .is_some_and(|node| node.tags.is("highway", "mini_roundabout"))
+        }));
 
         let project = |n: i64| -> Point {
             osm.nodes
@@ -173,6 +181,7 @@ impl<'a> Builder<'a> {
             map: Map::new(projection, side, &options.profile.name),
             info: BTreeMap::new(),
             junction_of_node: BTreeMap::new(),
+            rings: Vec::new(),
         };
         let mut pieces: Vec<(i64, Vec<i64>)> = Vec::new();
         for (way_id, r) in &runs {
