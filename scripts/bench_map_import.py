@@ -7,7 +7,7 @@ wall time of the whole process (time.perf_counter around subprocess.run). Ours w
 complete output folder (native JSON and binary, GeoJSON, PNG preview, rerun recording,
 summary.json). netconvert runs with the reference options of
 ../shared/data/osm/reference/README.md and, as there, reads XML only: a PBF is converted
-with `osmium cat` once beforehand, outside the timing.
+with `osmium cat` once beforehand, outside the timing, as is a gzipped XML file.
 
 Usage (from the repository root, after `cargo build --release -p pipeline`):
     SUMO_HOME=/usr/share/sumo python3 scripts/bench_map_import.py [--runs 7] [--out docs/benchmarks/map_import.json]
@@ -40,6 +40,9 @@ CASES = [
     ("northwestern_nu (PBF)", "northwestern_nu.osm.pbf", "northwestern_nu.osm"),
     ("leeds_cycleway (XML)", "leeds_cycleway.osm", "leeds_cycleway.osm"),
     ("helsinki (PBF)", "helsinki.osm.pbf", None),
+    ("andorra (PBF)", "roundabouts/andorra.osm.pbf", None),
+    ("campo-grande (XML.gz)", "roundabouts/campo-grande.osm.gz", None),
+    ("krems (XML.gz)", "roundabouts/krems.osm.gz", None),
 ]
 NETCONVERT_OPTS = ["--keep-edges.by-vclass", "passenger", "--roundabouts.guess", "--junctions.join", "--output.street-names"]
 
@@ -79,7 +82,7 @@ def main():
         for label, ours_in, their_in in CASES:
             ours_path = DATA / ours_in
             if their_in is None:
-                their_path = tmp / (ours_in.replace(".osm.pbf", "") + ".osm")
+                their_path = tmp / (Path(ours_in).name.split(".")[0] + ".osm")
                 subprocess.run(["osmium", "cat", str(ours_path), "-f", "osm", "-o", str(their_path), "--overwrite"], check=True)
             else:
                 their_path = DATA / their_in

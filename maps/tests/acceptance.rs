@@ -162,33 +162,33 @@ fn reference_dir_parent() -> PathBuf {
 }
 
 /// Car lane length in netconvert's passenger-car scope (the car profile minus
-/// `highway=service`) is within ±10 % of netconvert 1.15's figure for every file.
+/// `highway=service`) is within ±10 % of netconvert 1.15's figure for every file of both
+/// references (the bundled extracts', and the roundabout extracts').
 #[test]
 fn car_lane_length_within_ten_percent_of_netconvert() {
-    let Some(reference) = data("osm/reference/netconvert.json") else {
-        return;
-    };
-    let reference: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&reference).unwrap()).unwrap();
-    for (file, entry) in reference["files"].as_object().unwrap() {
-        let theirs = entry["primary"]["car_lane_length_m"].as_f64().unwrap();
-        let map = import_file(
-            &reference_dir_parent().join(file),
-            &ImportOptions::default(),
-        )
-        .unwrap();
-        let summary = maps::summary::summarize(&map);
-        let ours: f64 = summary
-            .car_lane_length_by_highway_m
-            .iter()
-            .filter(|(h, _)| h.as_str() != "service")
-            .map(|(_, v)| v)
-            .sum();
-        let ratio = ours / theirs;
-        eprintln!("{file}: ours {ours:.0} m, netconvert {theirs:.0} m, ratio {ratio:.3}");
-        assert!(
-            (0.9..=1.1).contains(&ratio),
-            "{file}: ours {ours:.0} m vs netconvert {theirs:.0} m"
-        );
+    for folder in ["osm", "osm/roundabouts"] {
+        let Some(reference) = data(&format!("{folder}/reference/netconvert.json")) else {
+            continue;
+        };
+        let reference: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&reference).unwrap()).unwrap();
+        let dir = reference_dir_parent().join("..").join(folder);
+        for (file, entry) in reference["files"].as_object().unwrap() {
+            let theirs = entry["primary"]["car_lane_length_m"].as_f64().unwrap();
+            let map = import_file(&dir.join(file), &ImportOptions::default()).unwrap();
+            let summary = maps::summary::summarize(&map);
+            let ours: f64 = summary
+                .car_lane_length_by_highway_m
+                .iter()
+                .filter(|(h, _)| h.as_str() != "service")
+                .map(|(_, v)| v)
+                .sum();
+            let ratio = ours / theirs;
+            eprintln!("{file}: ours {ours:.0} m, netconvert {theirs:.0} m, ratio {ratio:.3}");
+            assert!(
+                (0.9..=1.1).contains(&ratio),
+                "{file}: ours {ours:.0} m vs netconvert {theirs:.0} m"
+            );
+        }
     }
 }
