@@ -407,3 +407,52 @@ fn bundled_campus_imports() {
         "{summary}"
     );
 }
+
+/// `map info` tells the kinds apart on a real extract with two-lane rings and
+/// mini-roundabouts: the header counts them, every mini-roundabout is listed with its OSM
+/// node, and the rings two or more lanes wide are counted.
+#[test]
+fn map_info_lists_multi_lane_rings_and_mini_roundabouts() {
+    let Some(data) = shared_data() else {
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
+        return;
+    };
+    let input = data.join("osm/roundabouts/andorra.osm.pbf");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("andorra");
+    assert_success(
+        &import(&input, &out, &["-q", "--rerun", "off"]),
+        "map import andorra",
+    );
+    let info = run([
+        std::ffi::OsString::from("map"),
+        "info".into(),
+        out.clone().into(),
+    ]);
+    assert_success(&info, "map info");
+    let text = stdout(&info);
+    let summary = read_json(&out.join("summary.json"));
+    let rings = summary["roundabouts"].as_array().unwrap();
+    let minis = rings
+        .iter()
+        .filter(|r| r["kind"] == "mini_roundabout")
+        .count();
+    let wide = rings
+        .iter()
+        .filter(|r| r["kind"] != "mini_roundabout" && r["ring_lanes"].as_u64() >= Some(2))
+        .count();
+    assert!(minis > 0 && wide > 0, "{text}");
+    let header = format!(
+        "roundabouts  {} ({wide} two or more lanes wide), {minis} mini-roundabouts",
+        rings.len() - minis
+    );
+    assert!(text.contains(&header), "no `{header}` in\n{text}");
+    let listed = text
+        .lines()
+        .filter(|l| l.contains(" mini-roundabout: ") && l.contains("OSM node "))
+        .count();
+    assert_eq!(listed, minis, "{text}");
+}

@@ -189,14 +189,31 @@ pub fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
     drop(progress);
 
     let km = summary.car_lane_length_m / 1000.0;
+    let minis = summary
+        .roundabouts
+        .iter()
+        .filter(|r| r.kind == maps::model::RoundaboutKind::MiniRoundabout)
+        .count();
+    let rings = summary.roundabouts.len() - minis;
     ctx.ui.info(&format!(
         "map import: wrote {}: {}, {} ({km:.1} km of car lanes), {}, {}",
         dest.display(),
         plural(summary.roads, "road"),
         plural(summary.lanes, "lane"),
         plural(summary.junctions, "junction"),
-        plural(summary.roundabouts.len(), "roundabout"),
+        plural(rings, "roundabout"),
     ));
+    if minis > 0 {
+        ctx.ui
+            .info(&format!("map import: {}", plural(minis, "mini-roundabout")));
+    }
+    let not_imported = summary.ring_problems.iter().filter(|p| !p.imported).count();
+    if not_imported > 0 {
+        ctx.ui.warn(&format!(
+            "{} not imported as roundabouts (reasons in {SUMMARY_JSON}, `pipeline map info`)",
+            plural(not_imported, "tagged ring")
+        ));
+    }
     let skipped = &summary.skipped;
     if skipped.ways_missing_nodes + skipped.degenerate_ways + skipped.invalid_nodes > 0 {
         ctx.ui.warn(&format!(

@@ -5,6 +5,7 @@ use std::path::Path;
 use anyhow::{Context as _, Result};
 use maps::DrivingSide;
 use maps::io::MapFileForm;
+use maps::model::{PrioritySource, RoundaboutKind, RoundaboutPriority};
 use maps::summary::MapSummary;
 
 use crate::cli::InfoArgs;
@@ -87,16 +88,53 @@ fn format_summary(file: &Path, form: MapFileForm, s: &MapSummary) -> String {
             stops.join(", ")
         }
     );
-    let _ = writeln!(t, "roundabouts  {}", s.roundabouts.len());
+    let minis = s
+        .roundabouts
+        .iter()
+        .filter(|r| r.kind == RoundaboutKind::MiniRoundabout)
+        .count();
+    let _ = writeln!(
+        t,
+        "roundabouts  {} ({} two or more lanes wide), {}",
+        s.roundabouts.len() - minis,
+        s.roundabouts.iter().filter(|r| r.ring_lanes >= 2).count(),
+        plural(minis, "mini-roundabout")
+    );
     for r in &s.roundabouts {
+        let kind = match r.kind {
+            RoundaboutKind::Roundabout => "roundabout",
+            RoundaboutKind::Circular => "circular junction",
+            RoundaboutKind::MiniRoundabout => "mini-roundabout",
+        };
+        let priority = match (r.priority, r.priority_source) {
+            (RoundaboutPriority::Circulating, PrioritySource::Tags) => "ring first (tagged)",
+            (RoundaboutPriority::Circulating, PrioritySource::Assumed) => "ring first (assumed)",
+            (RoundaboutPriority::Entering, PrioritySource::Tags) => "entries first (tagged)",
+            (RoundaboutPriority::Entering, PrioritySource::Assumed) => "entries first (assumed)",
+        };
+        let osm = match r.osm_node_id {
+            Some(node) => format!("OSM node {node}"),
+            None => format!("OSM ways {:?}", r.osm_way_ids),
+        };
+        if r.kind == RoundaboutKind::MiniRoundabout {
+            let _ = writeln!(
+                t,
+                "  #{} {kind}: {}, {}, {priority}, {osm}",
+                r.id,
+                plural(r.entries, "entry"),
+                plural(r.exits, "exit"),
+            );
+            continue;
+        }
         let _ = writeln!(
             t,
-            "  #{}: {}, {}, {}, {}, radius {:.1} m, {}{}, OSM ways {:?}",
+            "  #{} {kind}: {}, {}, {}, {} ({} wide), radius {:.1} m, {}, {priority}{}, {osm}",
             r.id,
             plural(r.entries, "entry"),
             plural(r.exits, "exit"),
             plural(r.yield_lines, "yield line"),
             plural(r.circulating_lanes, "circulating lane"),
+            plural(r.ring_lanes as usize, "lane"),
             r.radius_m,
             if r.clockwise {
                 "clockwise"
@@ -104,7 +142,18 @@ fn format_summary(file: &Path, form: MapFileForm, s: &MapSummary) -> String {
                 "counter-clockwise"
             },
             if r.guessed { ", guessed" } else { "" },
-            r.osm_way_ids
+        );
+    }
+    for p in &s.ring_problems {
+        let _ = writeln!(
+            t,
+            "  {}: {}",
+            if p.imported {
+                "imported with a note"
+            } else {
+                "not imported"
+            },
+            p.reason
         );
     }
     let k = &s.skipped;
