@@ -455,4 +455,20 @@ fn map_info_lists_multi_lane_rings_and_mini_roundabouts() {
         .filter(|l| l.contains(" mini-roundabout: ") && l.contains("OSM node "))
         .count();
     assert_eq!(listed, minis, "{text}");
+    // The GeoJSON has a point per mini-roundabout and the kind and width of every ring.
+    let geojson = read_json(&out.join("map.geojson"));
+    let features = geojson["features"].as_array().unwrap();
+    let points = features
+        .iter()
+        .filter(|f| {
+            f["properties"]["kind"] == "mini_roundabout" && f["geometry"]["type"] == "Point"
+        })
+        .count();
+    assert_eq!(points, minis);
+    let wide_features = features
+        .iter()
+        .filter(|f| f["properties"]["kind"] == "roundabout")
+        .filter(|f| f["properties"]["ring_lanes"].as_u64() >= Some(2))
+        .count();
+    assert_eq!(wide_features, wide);
 }

@@ -8,7 +8,8 @@
 //! | `road` | LineString | a road's reference line |
 //! | `lane` | LineString | a lane's centre line, in its direction of travel |
 //! | `junction` | Polygon | a junction area (only junctions that have one) |
-//! | `roundabout` | Polygon (LineString if the ring does not close) | the circulating lanes' centres |
+//! | `roundabout` | Polygon (LineString if the ring does not close) | one trip round the ring's lanes; `roundabout_kind` (`roundabout` or `circular`), `ring_lanes`, `priority`, `priority_source` |
+//! | `mini_roundabout` | Point | a `highway=mini_roundabout` node, with its arms and priority |
 //! | `stop_line` / `give_way` | LineString | a stop or give-way line |
 //!
 //! Coordinates are rounded to 7 decimals (about 1 cm), which keeps files small and makes
@@ -19,7 +20,10 @@ use serde::Serialize;
 
 use crate::error::MapError;
 use crate::geometry::Point;
-use crate::model::{Direction, LaneId, Map, RoadId, RoundaboutSource, StopKind, StopLineSource};
+use crate::model::{
+    Direction, LaneId, Map, PrioritySource, RoadId, RoundaboutKind, RoundaboutPriority,
+    RoundaboutSource, StopKind, StopLineSource,
+};
 use crate::projection::Projector;
 
 /// A GeoJSON `FeatureCollection`. Serialising it gives the members in the usual order
@@ -42,6 +46,7 @@ pub struct Feature<'a> {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "type", content = "coordinates")]
 pub enum Geometry {
+    Point([f64; 2]),
     LineString(Vec<[f64; 2]>),
     Polygon(Vec<Vec<[f64; 2]>>),
 }
@@ -92,9 +97,22 @@ pub enum Properties<'a> {
         id: u32,
         kind: &'static str,
         osm_way_ids: &'a [i64],
+        priority: RoundaboutPriority,
+        priority_source: PrioritySource,
         radius_m: f64,
+        ring_lanes: u8,
+        roundabout_kind: RoundaboutKind,
         source: RoundaboutSource,
         yield_lines: usize,
+    },
+    MiniRoundabout {
+        entries: usize,
+        exits: usize,
+        id: u32,
+        kind: &'static str,
+        osm_node_id: i64,
+        priority: RoundaboutPriority,
+        priority_source: PrioritySource,
     },
     /// `kind` is `stop_line` or `give_way`.
     StopLine {
@@ -113,6 +131,7 @@ impl Properties<'_> {
             | Properties::Lane { kind, .. }
             | Properties::Junction { kind, .. }
             | Properties::Roundabout { kind, .. }
+            | Properties::MiniRoundabout { kind, .. }
             | Properties::StopLine { kind, .. } => kind,
         }
     }
@@ -297,9 +316,32 @@ pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
                 id: roundabout.id.0,
                 kind: "roundabout",
                 osm_way_ids: &roundabout.osm_way_ids,
+                priority: roundabout.priority,
+                priority_source: roundabout.priority_source,
                 radius_m: roundabout.radius_m,
+                ring_lanes: roundabout.lanes_across,
+                roundabout_kind: roundabout.kind,
                 source: roundabout.source,
                 yield_lines: roundabout.yield_lines.len(),
+            },
+        );
+    }
+    for mini in map.mini_roundabouts.values() {
+        let Some(junction) = map.junctions.get(&mini.junction) else {
+            continue;
+        };
+        push(
+            c.positions(&[junction.point])
+                .first()
+                .map(|p| Geometry::Point(*p)),
+            Properties::MiniRoundabout {
+                entries: mini.entries.len(),
+                exits: mini.exits.len(),
+                id: mini.id.0,
+                kind: "mini_roundabout",
+                osm_node_id: mini.osm_node_id,
+                priority: mini.priority,
+                priority_source: mini.priority_source,
             },
         );
     }
