@@ -78,6 +78,10 @@ pub struct RingRoute {
     pub exit_s: f64,
     /// Ring lanes driven, each with where it starts along the path, in driving order.
     pub ring_lanes: Vec<(LaneId, f64)>,
+    /// Lanes of the merge lane's ring road outside it, outermost first: an entry into an
+    /// inner lane of a multi-lane ring crosses them, and gives way to their traffic as to
+    /// the merge lane's. Empty where the route joins the outer lane.
+    pub crossed_lanes: Vec<LaneId>,
     /// Routes from other entries that do not drive this route's merge lane but whose cars
     /// still touch a car entering here (typically cars leaving the ring at this arm, whose
     /// exit curve sweeps the entry's mouth): a driver at this yield line waits for them as
@@ -103,6 +107,12 @@ impl RingRoute {
             .find(|(l, _)| *l == lane)
             .map(|(_, s)| *s)
     }
+
+    /// The ring lanes a car at this yield line gives way to: the merge lane, then the
+    /// lanes it crosses to reach it.
+    pub fn yield_lanes(&self) -> impl Iterator<Item = LaneId> + '_ {
+        std::iter::once(self.merge_lane).chain(self.crossed_lanes.iter().copied())
+    }
 }
 
 /// Every usable route through one roundabout.
@@ -116,6 +126,9 @@ pub struct RoundaboutLayout {
     pub routes: Vec<RingRoute>,
     /// Indices into `routes` by entry.
     pub routes_by_entry: Vec<Vec<usize>>,
+    /// Each ring lane's place across its ring road: 0 for the outermost lane (every lane
+    /// of a single-lane ring), 1 for the one inside it, and so on.
+    pub ring_lane_ranks: BTreeMap<LaneId, u8>,
     /// The box holding every route.
     pub bounds: Bounds,
 }
@@ -135,6 +148,7 @@ impl RoundaboutLayout {
             .get(&id)
             .ok_or_else(|| SimError::Map(format!("roundabout {id} is not in the map")))?;
         let ring: BTreeSet<LaneId> = rb.ring_lanes.iter().copied().collect();
+        let ranks = ring_lane_ranks(map, rb);
         let outgoing = map.outgoing();
         let entries = arm_lanes(map, &rb.entries);
         let exits = arm_lanes(map, &rb.exits);
@@ -153,7 +167,7 @@ impl RoundaboutLayout {
                 let Some(route) = build_route(
                     map,
                     rb,
-                    &ring,
+                    (&ring, &ranks),
                     &outgoing,
                     (ei, entry),
                     (xi, exit),
@@ -187,6 +201,7 @@ impl RoundaboutLayout {
             exits,
             routes,
             routes_by_entry,
+            ring_lane_ranks: ranks,
             bounds,
         })
     }
@@ -194,6 +209,25 @@ impl RoundaboutLayout {
     /// Entries that have at least one route.
     pub fn usable_entries(&self) -> impl Iterator<Item = usize> + '_ {
         (0..self.entries.len()).filter(|&e| !self.routes_by_entry[e].is_empty())
+    }
+
+    /// The rank ([`RoundaboutLayout::ring_lane_ranks`]) of the ring lane under piece
+    /// `piece` of route `route`: a ring lane's own, the outer of the two ring lanes a
+    /// connection joins (a lane change counts on both lanes), the ring lane an exit
+    /// connection leaves; None off the ring.
+    pub fn ring_rank_at(&self, route: usize, piece: usize) -> Option<u8> {
+        let pieces = self.routes.get(route)?.path.pieces();
+        let rank = |i: usize| match pieces.get(i)?.key {
+            PieceKey::Lane(l) => self.ring_lane_ranks.get(&l).copied(),
+            PieceKey::Connection(_) => None,
+        };
+        match pieces.get(piece)?.key {
+            PieceKey::Lane(_) => rank(piece),
+            PieceKey::Connection(_) => {
+                let before = rank(piece.checked_sub(1)?)?;
+                Some(rank(piece + 1).map_or(before, |after| before.min(after)))
+            }
+        }
     }
 
     /// The first roundabout of the map (in id order) that has usable routes.
@@ -322,14 +356,14 @@ fn find_entry_conflicts(routes: &mut [RingRoute]) {
 fn build_route(
     map: &Map,
     rb: &Roundabout,
-    ring: &BTreeSet<LaneId>,
+    (ring, ranks): (&BTreeSet<LaneId>, &BTreeMap<LaneId, u8>),
     outgoing: &BTreeMap<LaneId, Vec<ConnectionId>>,
     (entry_index, entry): (usize, &ArmLane),
     (exit_index, exit): (usize, &ArmLane),
     config: &LayoutConfig,
     profile: SpeedProfile,
 ) -> Option<RingRoute> {
-    let core = shortest_through_ring(map, ring, outgoing, entry.lane, exit.lane)?;
+    let core = ring_core(map, rb, (ring, ranks), outgoing, entry, exit)?;
     let entry_lane = map.lanes.get(&entry.lane)?;
     let entry_len = polyline_length(&entry_lane.centre);
     // Yield line on the entry lane, as a distance from the lane's start.
@@ -344,12 +378,31 @@ fn build_route(
     let mut behind = yield_on_entry.unwrap_or(entry_len);
     let mut lane = entry.lane;
     let mut seen = BTreeSet::from([lane]);
+    // Around a multi-lane ring (main roads, often with junctions close by) the approach and
+    // the exit stretch stop at the first intersection rather than cross it, where they
+    // could turn across the traffic of a neighbouring arm; elsewhere the first connection
+    // in id order is taken.
+    let through_intersections = rb.lanes_across < 2;
+    let pick = |candidates: Vec<&maps::Connection>| -> Option<ConnectionId> {
+        candidates
+            .iter()
+            .find(|c| {
+                through_intersections
+                    || map
+                        .junctions
+                        .get(&c.junction)
+                        .is_some_and(|j| j.kind != maps::JunctionKind::Intersection)
+            })
+            .map(|c| c.id)
+    };
     while behind < config.approach_m && before.len() < 2 * MAX_EXTENSION_LANES {
-        let Some(c) = map
-            .connections
-            .values()
-            .find(|c| c.to == lane && !ring.contains(&c.from) && !seen.contains(&c.from))
-        else {
+        let Some(c) = pick(
+            map.connections
+                .values()
+                .filter(|c| c.to == lane && !ring.contains(&c.from) && !seen.contains(&c.from))
+                .collect(),
+        )
+        .and_then(|id| map.connections.get(&id)) else {
             break;
         };
         let from = map.lanes.get(&c.from)?;
@@ -373,9 +426,13 @@ fn build_route(
             break;
         }
         let next = outgoing.get(&lane).and_then(|cs| {
-            cs.iter()
-                .filter_map(|c| map.connections.get(c))
-                .find(|c| !ring.contains(&c.to) && !seen.contains(&c.to))
+            pick(
+                cs.iter()
+                    .filter_map(|c| map.connections.get(c))
+                    .filter(|c| !ring.contains(&c.to) && !seen.contains(&c.to))
+                    .collect(),
+            )
+            .and_then(|id| map.connections.get(&id))
         });
         let Some(c) = next else { break };
         let to = map.lanes.get(&c.to)?;
@@ -413,6 +470,7 @@ fn build_route(
         })
         .collect();
     let &(merge_lane, merge_s) = ring_lanes.first()?;
+    let crossed_lanes = crossed_lanes(map, ranks, merge_lane);
     let exit_s = lane_start(exit.lane)?;
     let yield_s = yield_on_entry.map_or(merge_s, |y| (entry_start + y).min(merge_s));
     Some(RingRoute {
@@ -424,18 +482,151 @@ fn build_route(
         merge_lane,
         exit_s,
         ring_lanes,
+        crossed_lanes,
         entry_conflicts: Vec::new(),
     })
 }
 
+/// The lanes of `merge_lane`'s ring road outside it, outermost first.
+fn crossed_lanes(map: &Map, ranks: &BTreeMap<LaneId, u8>, merge_lane: LaneId) -> Vec<LaneId> {
+    let Some(&rank) = ranks.get(&merge_lane).filter(|r| **r > 0) else {
+        return Vec::new();
+    };
+    let Some(road) = map
+        .lanes
+        .get(&merge_lane)
+        .and_then(|l| map.roads.get(&l.road))
+    else {
+        return Vec::new();
+    };
+    let mut outside: Vec<(u8, LaneId)> = road
+        .lanes()
+        .filter_map(|l| Some((*ranks.get(&l)?, l)))
+        .filter(|(r, _)| *r < rank)
+        .collect();
+    outside.sort_unstable();
+    outside.into_iter().map(|(_, l)| l).collect()
+}
+
+/// Each ring lane's place across its ring road, 0 for the outermost: the lanes of a road
+/// in order of their mean distance from the ring's centre, farthest first.
+fn ring_lane_ranks(map: &Map, rb: &Roundabout) -> BTreeMap<LaneId, u8> {
+    let ring: BTreeSet<LaneId> = rb.ring_lanes.iter().copied().collect();
+    let mut ranks = BTreeMap::new();
+    for road in rb.roads.iter().filter_map(|r| map.roads.get(r)) {
+        let mut lanes: Vec<(f64, LaneId)> = road
+            .lanes()
+            .filter(|l| ring.contains(l))
+            .filter_map(|l| map.lanes.get(&l))
+            .map(|l| {
+                let n = l.centre.len().max(1) as f64;
+                let mean = l.centre.iter().map(|p| p.distance(rb.centre)).sum::<f64>() / n;
+                (mean, l.id)
+            })
+            .collect();
+        lanes.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        for (k, (_, id)) in lanes.into_iter().enumerate() {
+            ranks.insert(id, u8::try_from(k).unwrap_or(u8::MAX));
+        }
+    }
+    for l in &rb.ring_lanes {
+        ranks.entry(*l).or_insert(0);
+    }
+    ranks
+}
+
+/// Added to a route's length for each change of lane on the ring when the route keeps to
+/// its lane, m: more than any way round a ring.
+const KEEP_LANE_COST_M: f64 = 10_000.0;
+/// Added for each change of lane when the route may take an inner lane, m: enough that a
+/// route changes lanes only where the inner lane saves more than the changes cost.
+const LANE_CHANGE_COST_M: f64 = 2.0;
+/// A route that passes more exits than this before its own takes an inner lane where the
+/// ring has one.
+const EXITS_PASSED_ON_OUTER_LANE: usize = 1;
+
+/// The pieces from the entry lane through the ring to the exit lane. On a multi-lane ring
+/// a route keeps to the lane it enters on (the outer lane, from a single-lane entry) when
+/// its exit is among the next [`EXITS_PASSED_ON_OUTER_LANE`] + 1; a route to a later exit
+/// is the shortest, with a small cost per lane change: it moves to an inner lane after
+/// entering and back out to the outer lane, from which exits leave, before its exit.
+fn ring_core(
+    map: &Map,
+    rb: &Roundabout,
+    (ring, ranks): (&BTreeSet<LaneId>, &BTreeMap<LaneId, u8>),
+    outgoing: &BTreeMap<LaneId, Vec<ConnectionId>>,
+    entry: &ArmLane,
+    exit: &ArmLane,
+) -> Option<Vec<PieceKey>> {
+    if ranks.values().all(|r| *r == 0) {
+        return shortest_through_ring(map, (ring, ranks), outgoing, (entry.lane, exit.lane), 0.0);
+    }
+    let kept = shortest_through_ring(
+        map,
+        (ring, ranks),
+        outgoing,
+        (entry.lane, exit.lane),
+        KEEP_LANE_COST_M,
+    );
+    let exit_junctions: BTreeSet<maps::JunctionId> = rb
+        .exits
+        .iter()
+        .filter(|a| a.road != exit.road)
+        .map(|a| a.junction)
+        .collect();
+    // Once round is the most a driver goes: a route that drives a ring road twice passes its
+    // own entry again, where cars entering behind it would not expect it.
+    let once_round = |keys: &Vec<PieceKey>| {
+        let mut roads = BTreeSet::new();
+        keys.iter()
+            .filter_map(|k| match k {
+                PieceKey::Lane(l) if ring.contains(l) => map.lanes.get(l),
+                _ => None,
+            })
+            .all(|l| roads.insert(l.road))
+    };
+    let kept = kept.filter(once_round);
+    let passed = kept.as_ref().map_or(0, |keys| {
+        let ring_lanes: Vec<LaneId> = keys
+            .iter()
+            .filter_map(|k| match k {
+                PieceKey::Lane(l) if ring.contains(l) => Some(*l),
+                _ => None,
+            })
+            .collect();
+        let passed: BTreeSet<maps::JunctionId> = ring_lanes
+            .iter()
+            .take(ring_lanes.len().saturating_sub(1))
+            .filter_map(|l| map.lanes.get(l))
+            .map(|l| l.to_junction)
+            .filter(|j| exit_junctions.contains(j))
+            .collect();
+        passed.len()
+    });
+    if kept.is_some() && passed <= EXITS_PASSED_ON_OUTER_LANE {
+        return kept;
+    }
+    shortest_through_ring(
+        map,
+        (ring, ranks),
+        outgoing,
+        (entry.lane, exit.lane),
+        LANE_CHANGE_COST_M,
+    )
+    .filter(once_round)
+    .or(kept)
+}
+
 /// Shortest chain of pieces from the start of lane `from` to the end of lane `to` that
-/// crosses at most [`MAX_LANES_BEFORE_RING`] lanes before the ring, then only ring lanes.
+/// crosses at most [`MAX_LANES_BEFORE_RING`] lanes before the ring, then only ring lanes;
+/// each connection between ring lanes of different ranks (a lane change) counts
+/// `lane_change_cost` metres on top of its length.
 fn shortest_through_ring(
     map: &Map,
-    ring: &BTreeSet<LaneId>,
+    (ring, ranks): (&BTreeSet<LaneId>, &BTreeMap<LaneId, u8>),
     outgoing: &BTreeMap<LaneId, Vec<ConnectionId>>,
-    from: LaneId,
-    to: LaneId,
+    (from, to): (LaneId, LaneId),
+    lane_change_cost: f64,
 ) -> Option<Vec<PieceKey>> {
     // State: (lane, lanes crossed before reaching the ring, whether the ring was reached).
     type State = (LaneId, usize, bool);
@@ -480,7 +671,12 @@ fn shortest_through_ring(
             } else {
                 continue;
             };
-            let nd = d + lane_len + conn.length_m;
+            let mut nd = d + lane_len + conn.length_m;
+            if let (Some(a), Some(b)) = (ranks.get(&conn.from), ranks.get(&conn.to))
+                && a != b
+            {
+                nd += lane_change_cost;
+            }
             if best.get(&next).is_none_or(|(b, _)| nd < *b) {
                 best.insert(next, (nd, Some((state, *c))));
                 heap.push(Item(nd, next));

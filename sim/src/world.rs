@@ -361,6 +361,8 @@ pub struct World {
     grid: UniformGrid,
     /// Scratch: what each vehicle sees ahead, refreshed each step.
     lookahead: Vec<Lookahead>,
+    /// The ring has lanes side by side somewhere (see [`World::entering_across`]).
+    multi_lane: bool,
     found: Vec<u32>,
 }
 
@@ -379,6 +381,7 @@ impl World {
         }
         World {
             grid: UniformGrid::new(region, 8.0),
+            multi_lane: layout.ring_lane_ranks.values().any(|r| *r > 0),
             layout,
             config,
             ego_config,
@@ -794,7 +797,12 @@ impl World {
                 if j == i || !o.committed {
                     return true;
                 }
-                let Some(d) = self.to_lane_start(o, route.merge_lane) else {
+                // Along its route to the first of the lanes this entry gives way to (the merge
+                // lane, and the lanes an entry into an inner lane crosses) that it drives.
+                let Some(d) = route
+                    .yield_lanes()
+                    .find_map(|lane| self.to_lane_start(o, lane))
+                else {
                     // Not coming round to the merge lane; it may still sweep the entry's
                     // mouth (leaving the ring here): wait while it is in or near that zone.
                     return route
@@ -848,17 +856,20 @@ impl World {
             .min_by(f64::total_cmp)
     }
 
-    /// Every committed vehicle within the horizon still coming to vehicle `i`'s merge point,
+    /// Every committed vehicle within the horizon still coming to vehicle `i`'s merge point
+    /// (or to where its entry crosses an outer ring lane, on the way into an inner one),
     /// with the time its front needs to reach that point (at its speed, but at least 2 m/s
     /// as gap acceptance assumes; 0 while it straddles the point), by index.
     pub fn merge_lags_s(&self, i: usize) -> impl Iterator<Item = (usize, f64)> + '_ {
-        let merge_lane = self.layout.routes[self.vehicles[i].route].merge_lane;
+        let route = &self.layout.routes[self.vehicles[i].route];
         self.vehicles
             .iter()
             .enumerate()
             .filter(move |&(j, o)| j != i && o.committed)
             .filter_map(move |(j, o)| {
-                let d = self.to_lane_start(o, merge_lane)?;
+                let d = route
+                    .yield_lanes()
+                    .find_map(|lane| self.to_lane_start(o, lane))?;
                 if d >= self.config.horizon_m || d <= -o.length {
                     return None; // far away, or past the merge point
                 }
@@ -892,6 +903,12 @@ impl World {
         {
             a = a.min(v.driver.idm(v.speed, v0, Some((o.gap_m, o.closing_mps))));
         }
+        if v.committed
+            && self.multi_lane
+            && let Some(gap) = self.entering_across(i)
+        {
+            a = a.min(v.driver.idm(v.speed, v0, Some((gap, v.speed))));
+        }
         if !v.committed {
             let to_line = route.yield_s - v.front_s();
             if to_line > -0.5 {
@@ -901,6 +918,42 @@ impl World {
             }
         }
         a
+    }
+
+    /// On a multi-lane ring, how far vehicle `i` can go before its footprint would touch a
+    /// car entering across its way (committed, front past its yield line, not yet merged,
+    /// and on a route in conflict with `i`'s: see [`RingRoute::entry_conflicts`]), where
+    /// that car stands now, m. Such a car has taken its gap and may be held up on the
+    /// ring's mouth (behind a queue on its merge lane); a car on an inner lane, which
+    /// neither follows it nor merges behind it, waits for it as for a car standing there.
+    fn entering_across(&self, i: usize) -> Option<f64> {
+        const STEP_M: f64 = 0.5;
+        let me = &self.vehicles[i];
+        let path = &self.layout.routes[me.route].path;
+        self.vehicles
+            .iter()
+            .enumerate()
+            .filter(|&(j, o)| j != i && o.committed)
+            .filter_map(|(_, o)| {
+                let r = &self.layout.routes[o.route];
+                if o.front_s() <= r.yield_s || o.s >= r.merge_s + o.length / 2.0 {
+                    return None;
+                }
+                let c = r.entry_conflicts.iter().find(|c| c.route == me.route)?;
+                if me.s >= c.from_s {
+                    return None;
+                }
+                let theirs = o.footprint();
+                let steps = ((c.to_s - me.s) / STEP_M).ceil().max(0.0) as usize;
+                (1..=steps).find_map(|k| {
+                    let s = (me.s + k as f64 * STEP_M).min(c.to_s);
+                    let (p, h) = path.pose_at(s);
+                    OrientedBox::new(p, h, me.length, me.width)
+                        .overlaps(&theirs)
+                        .then_some(s - me.s - STEP_M)
+                })
+            })
+            .min_by(f64::total_cmp)
     }
 
     /// Removes vehicles whose front has reached the end of their route.

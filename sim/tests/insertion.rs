@@ -372,3 +372,20 @@ fn action_repeat_holds_the_action_for_that_many_steps() {
         .is_err()
     );
 }
+
+#[test]
+fn the_task_runs_on_the_roundabout_the_config_names() {
+    let map = montlake();
+    let first = *map.roundabouts.keys().next().unwrap();
+    let only = InsertionConfig {
+        roundabout: Some(first.0),
+        ..InsertionConfig::default()
+    };
+    let setup = InsertionSetup::new(Arc::clone(&map), only).unwrap();
+    assert!(setup.layouts().all(|l| l.roundabout == first));
+    let missing = InsertionConfig {
+        roundabout: Some(u32::MAX),
+        ..InsertionConfig::default()
+    };
+    assert!(InsertionSetup::new(map, missing).is_err());
+}

@@ -171,6 +171,11 @@ pub struct InsertionConfig {
     /// changes only the reward (σ); at 0.5 both are the same. Whether to take a gap stays
     /// the agent's decision either way.
     pub ego_style_from_aggressiveness: bool,
+    /// Runs the task on this roundabout of the map only (its id, as in the map's
+    /// `roundabouts`); unset (the default), on every roundabout with a route through its
+    /// ring, one drawn per episode.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub roundabout: Option<u32>,
 }
 
 impl InsertionConfig {
@@ -246,6 +251,7 @@ impl Default for InsertionConfig {
             action_repeat: 1,
             frame_steps: None,
             ego_style_from_aggressiveness: false,
+            roundabout: None,
         }
     }
 }
@@ -341,6 +347,9 @@ impl RoundaboutTaskConfig for InsertionConfig {
     fn observation_spec(&self) -> ObservationSpec {
         self.observation.observation_spec(self.scalar_count())
     }
+    fn roundabout(&self) -> Option<maps::RoundaboutId> {
+        self.roundabout.map(maps::RoundaboutId)
+    }
 }
 
 fn validate(c: &InsertionConfig) -> Result<(), SimError> {
@@ -380,7 +389,8 @@ fn validate(c: &InsertionConfig) -> Result<(), SimError> {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct InsertionState {
     /// Straight-line distance from the ego to the nearest vehicle on the ring (infinite when
-    /// the ring is empty), m.
+    /// the ring is empty), m. On a multi-lane ring only vehicles on the lanes the ego's
+    /// entry meets count: its merge lane and the lanes outside it.
     pub nearest_circulating_m: f64,
     /// The ego's front is past its yield line.
     pub ego_entered: bool,
@@ -547,13 +557,25 @@ impl RoundaboutInsertion {
         };
         let me = &world.vehicles()[ego];
         let route = world.route(me);
+        let layout = world.layout();
+        // The ring lanes the ego's entry meets: its merge lane and those outside it (on a
+        // multi-lane ring, traffic on lanes inside the merge lane does not cross its way).
+        let merge_rank = layout
+            .ring_lane_ranks
+            .get(&route.merge_lane)
+            .copied()
+            .unwrap_or(0);
         let nearest_circulating_m = world
             .vehicles()
             .iter()
             .filter(|v| !v.is_ego())
             .filter(|v| {
                 let r = world.route(v);
-                v.s >= r.merge_s && v.s < r.exit_s
+                v.s >= r.merge_s
+                    && v.s < r.exit_s
+                    && layout
+                        .ring_rank_at(v.route, v.piece)
+                        .is_none_or(|rank| rank <= merge_rank)
             })
             .map(|v| v.position.distance(me.position))
             .fold(f64::INFINITY, f64::min);

@@ -151,6 +151,11 @@ pub struct RingDrivingConfig {
     pub max_lane_distance_m: f64,
     /// Speeds are divided by this in the scalar inputs, m/s.
     pub speed_scale_mps: f64,
+    /// Runs the task on this roundabout of the map only (its id, as in the map's
+    /// `roundabouts`); unset (the default), on every roundabout with a route through its
+    /// ring, one drawn per episode.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub roundabout: Option<u32>,
 }
 
 impl Default for RingDrivingConfig {
@@ -187,6 +192,7 @@ impl Default for RingDrivingConfig {
             start_speed_fraction: (0.5, 1.0),
             max_lane_distance_m: 4.0,
             speed_scale_mps: 15.0,
+            roundabout: None,
         }
     }
 }
@@ -306,6 +312,9 @@ impl RoundaboutTaskConfig for RingDrivingConfig {
 
     fn observation_spec(&self) -> ObservationSpec {
         RingDrivingConfig::observation_spec(self)
+    }
+    fn roundabout(&self) -> Option<maps::RoundaboutId> {
+        self.roundabout.map(maps::RoundaboutId)
     }
 }
 

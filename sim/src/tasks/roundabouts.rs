@@ -5,7 +5,7 @@
 use std::fmt::Debug;
 use std::sync::Arc;
 
-use maps::Map;
+use maps::{Map, RoundaboutId};
 use rand::Rng;
 
 use crate::env::ObservationSpec;
@@ -27,6 +27,11 @@ pub trait RoundaboutTaskConfig: Debug {
     fn bev(&self) -> &BevConfig;
     /// The shape of the task's observations.
     fn observation_spec(&self) -> ObservationSpec;
+    /// The one roundabout of the map the task runs on; None (the default) runs it on every
+    /// roundabout with a route through its ring.
+    fn roundabout(&self) -> Option<RoundaboutId> {
+        None
+    }
 }
 
 /// What a task on a map's roundabouts prepares once per map and shares with every
@@ -48,7 +53,12 @@ impl<C: RoundaboutTaskConfig> RoundaboutSetup<C> {
         config: C,
         observer: Option<Arc<dyn SceneObserver>>,
     ) -> Result<Arc<Self>, SimError> {
-        let roundabouts = RoundaboutSet::new(map, config.layout(), config.bev())?;
+        let roundabouts = RoundaboutSet::with_roundabout(
+            map,
+            config.layout(),
+            config.bev(),
+            config.roundabout(),
+        )?;
         Ok(Arc::new(RoundaboutSetup {
             config,
             roundabouts,
@@ -84,9 +94,29 @@ pub struct RoundaboutSet {
 impl RoundaboutSet {
     /// Prepares the usable roundabouts of `map`; fails when there is none.
     pub fn new(map: Arc<Map>, layout: &LayoutConfig, view: &BevConfig) -> Result<Self, SimError> {
+        Self::with_roundabout(map, layout, view, None)
+    }
+
+    /// Prepares roundabout `only` of `map`, or with None every usable one; fails when it is
+    /// not in the map or has no route through its ring (with None: when none has).
+    pub fn with_roundabout(
+        map: Arc<Map>,
+        layout: &LayoutConfig,
+        view: &BevConfig,
+        only: Option<RoundaboutId>,
+    ) -> Result<Self, SimError> {
         let mut roundabouts = Vec::new();
         let mut problems = Vec::new();
-        for id in map.roundabouts.keys() {
+        if let Some(id) = only
+            && !map.roundabouts.contains_key(&id)
+        {
+            return Err(SimError::Map(format!("roundabout {id} is not in the map")));
+        }
+        for id in map
+            .roundabouts
+            .keys()
+            .filter(|id| only.is_none_or(|o| o == **id))
+        {
             match RoundaboutLayout::new(&map, *id, layout) {
                 Ok(layout) => {
                     // Routes rounded off at kinks may graze the mapped lanes' edges: a car's
