@@ -15,6 +15,7 @@ mod report;
 pub mod settings;
 mod simlog;
 mod stage_env;
+mod stage_key;
 pub mod stages;
 
 use std::collections::BTreeMap;

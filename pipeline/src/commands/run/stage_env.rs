@@ -15,7 +15,6 @@ use super::stages::{
 use crate::cli::{Cli, RerunMode};
 use crate::commands::Context;
 use crate::config::Config;
-use crate::error::CliError;
 use crate::recording::Stream;
 use crate::ui::Verbosity;
 
@@ -59,7 +58,7 @@ impl StageEnv<'_> {
     }
 
     /// The segmenter recipe file of the profile, resolved against the config file.
-    fn segmenter_settings(&self) -> Option<PathBuf> {
+    pub(super) fn segmenter_settings(&self) -> Option<PathBuf> {
         let file = self.profile.segmenter.settings.as_ref()?;
         Some(self.ctx.config.resolve(file))
     }
@@ -107,65 +106,6 @@ impl StageEnv<'_> {
             recording: recording.as_ref(),
         };
         crate::dispatch(&child_ctx)
-    }
-
-    /// The settings that shape this stage's outputs (part of its key).
-    pub fn settings(&self, stage: StageName) -> Result<serde_json::Value> {
-        let p = self.profile;
-        let seed = self.ctx.cli.seed;
-        let version = env!("CARGO_PKG_VERSION");
-        Ok(match stage {
-            StageName::Maps => serde_json::json!({
-                "version": version,
-                "import": serde_json::to_value(&self.ctx.config.map.import)?,
-            }),
-            StageName::Dataset => serde_json::json!({
-                "version": version, "seed": seed,
-                "images": p.dataset.images, "size": p.dataset.size,
-            }),
-            StageName::Augment => serde_json::json!({
-                "version": version, "seed": seed, "copies": p.dataset.augment_copies,
-            }),
-            StageName::Segmenter => {
-                let recipe = match self.segmenter_settings() {
-                    Some(file) => {
-                        let recipe = models::segmenter::train::load_training_config(&file)
-                            .map_err(|e| {
-                                CliError::file(
-                                    &file,
-                                    format!("not a segmenter recipe: {e}"),
-                                    "fix `settings` in [run.<profile>.segmenter] of the config",
-                                )
-                            })?;
-                        serde_json::to_value(recipe)?
-                    }
-                    None => serde_json::Value::Null,
-                };
-                serde_json::json!({
-                    "version": version, "seed": seed, "segmenter": serde_json::to_value(&p.segmenter)?,
-                    "recipe": recipe,
-                })
-            }
-            StageName::Agent => serde_json::json!({
-                "version": version, "seed": seed,
-                "eval_episodes": p.agent.eval_episodes,
-                "agent": serde_json::to_value(&self.config()?.agent)?,
-            }),
-            StageName::Logs => serde_json::json!({
-                "version": version, "seed": seed,
-                "logs": serde_json::to_value(&p.logs)?,
-                "task": serde_json::to_value(&self.config()?.agent.task)?,
-            }),
-            StageName::Replay => serde_json::json!({ "version": version }),
-        })
-    }
-
-    /// Files outside the run folder the stage reads.
-    pub fn external_inputs(&self, stage: StageName) -> Vec<PathBuf> {
-        match stage {
-            StageName::Maps => vec![self.campus.to_path_buf(), self.roundabout.to_path_buf()],
-            _ => Vec::new(),
-        }
     }
 
     /// Runs the stage; its output folders do not exist when it starts.
