@@ -921,34 +921,24 @@ impl Builder<'_> {
         let Arms { entries, exits } = self.arms_at(&ring_junctions, &ring_set);
         // An arm cut off from the ring (by a turn restriction, say) is left out, and said so.
         let mut cut_off = Vec::new();
-        let entries: Vec<RoundaboutArm> = entries
-            .into_iter()
-            .filter(|arm| {
-                let ok = arm.lanes.iter().any(|l| {
-                    next_of
-                        .get(l)
-                        .is_some_and(|n| n.iter().any(|x| lane_set.contains(x)))
-                });
-                if !ok {
-                    cut_off.push(("entry", arm.road));
-                }
-                ok
-            })
-            .collect();
-        let exits: Vec<RoundaboutArm> = exits
-            .into_iter()
-            .filter(|arm| {
-                let ok = arm.lanes.iter().any(|l| {
-                    prev_of
-                        .get(l)
-                        .is_some_and(|p| p.iter().any(|x| lane_set.contains(x)))
-                });
-                if !ok {
-                    cut_off.push(("exit", arm.road));
-                }
-                ok
-            })
-            .collect();
+        let mut keep_linked =
+            |arms: Vec<RoundaboutArm>, links: &BTreeMap<LaneId, Vec<LaneId>>, what| {
+                arms.into_iter()
+                    .filter(|arm| {
+                        let ok = arm.lanes.iter().any(|l| {
+                            links
+                                .get(l)
+                                .is_some_and(|n| n.iter().any(|x| lane_set.contains(x)))
+                        });
+                        if !ok {
+                            cut_off.push((what, arm.road));
+                        }
+                        ok
+                    })
+                    .collect::<Vec<_>>()
+            };
+        let entries = keep_linked(entries, next_of, "entry");
+        let exits = keep_linked(exits, prev_of, "exit");
         for (what, road) in cut_off {
             let way = self
                 .map

@@ -106,12 +106,15 @@ fn format_summary(file: &Path, form: MapFileForm, s: &MapSummary) -> String {
             RoundaboutKind::Circular => "circular junction",
             RoundaboutKind::MiniRoundabout => "mini-roundabout",
         };
-        let priority = match (r.priority, r.priority_source) {
-            (RoundaboutPriority::Circulating, PrioritySource::Tags) => "ring first (tagged)",
-            (RoundaboutPriority::Circulating, PrioritySource::Assumed) => "ring first (assumed)",
-            (RoundaboutPriority::Entering, PrioritySource::Tags) => "entries first (tagged)",
-            (RoundaboutPriority::Entering, PrioritySource::Assumed) => "entries first (assumed)",
+        let first = match r.priority {
+            RoundaboutPriority::Circulating => "ring first",
+            RoundaboutPriority::Entering => "entries first",
         };
+        let how = match r.priority_source {
+            PrioritySource::Tags => "tagged",
+            PrioritySource::Assumed => "assumed",
+        };
+        let priority = format!("{first} ({how})");
         let osm = match r.osm_node_id {
             Some(node) => format!("OSM node {node}"),
             None => format!("OSM ways {:?}", r.osm_way_ids),
