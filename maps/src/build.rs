@@ -12,6 +12,7 @@ use crate::profile::RoadProfile;
 use crate::projection::LatLon;
 
 mod connect;
+mod mini;
 mod roundabouts;
 mod select;
 mod shape;
@@ -176,7 +177,9 @@ pub fn import_osm(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapErro
 }
 
 fn build_osm_map(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError> {
-    let mut b = Builder::select_roads(osm, options)?;
+    let minis = mini::ring_mini_roundabouts(osm, options);
+    let osm = minis.as_ref().map_or(osm, |m| &m.osm);
+    let mut b = Builder::select_roads(osm, options, minis.as_ref())?;
     b.check("select_roads")?;
     b.shape_junctions();
     b.check("shape_junctions")?;
@@ -198,5 +201,7 @@ fn build_osm_map(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError
     b.check("place_stop_lines")?;
     b.paint_markings();
     b.check("paint_markings")?;
+    b.forget_made_ways();
+    b.check("forget_made_ways")?;
     Ok(b.map)
 }

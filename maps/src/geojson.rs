@@ -8,8 +8,8 @@
 //! | `road` | LineString | a road's reference line |
 //! | `lane` | LineString | a lane's centre line, in its direction of travel |
 //! | `junction` | Polygon | a junction area (only junctions that have one) |
-//! | `roundabout` | Polygon (LineString if the ring does not close) | one trip round the ring's lanes; `roundabout_kind` (`roundabout` or `circular`), `ring_lanes`, `priority`, `priority_source` |
-//! | `mini_roundabout` | Point | a `highway=mini_roundabout` node, with its arms and priority |
+//! | `roundabout` | Polygon (LineString if the ring does not close) | one trip round the ring's lanes; `roundabout_kind` (`roundabout`, `circular` or `mini_roundabout`), `ring_lanes`, `priority`, `priority_source` |
+//! | `mini_roundabout` | Point | a `highway=mini_roundabout` node (the centre of the small ring made round it), with its arms and priority |
 //! | `stop_line` / `give_way` | LineString | a stop or give-way line |
 //!
 //! Coordinates are rounded to 7 decimals (about 1 cm), which keeps files small and makes
@@ -326,12 +326,12 @@ pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
             },
         );
     }
-    for mini in map.mini_roundabouts.values() {
-        let Some(junction) = map.junctions.get(&mini.junction) else {
+    for mini in map.roundabouts.values() {
+        let Some(osm_node_id) = mini.osm_node_id else {
             continue;
         };
         push(
-            c.positions(&[junction.point])
+            c.positions(&[mini.centre])
                 .first()
                 .map(|p| Geometry::Point(*p)),
             Properties::MiniRoundabout {
@@ -339,7 +339,7 @@ pub fn to_geojson<'a>(map: &'a Map) -> FeatureCollection<'a> {
                 exits: mini.exits.len(),
                 id: mini.id.0,
                 kind: "mini_roundabout",
-                osm_node_id: mini.osm_node_id,
+                osm_node_id,
                 priority: mini.priority,
                 priority_source: mini.priority_source,
             },

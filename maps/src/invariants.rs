@@ -5,8 +5,8 @@
 //! lane at its junction; the circulating lanes of a roundabout form one directed cycle
 //! through the connections; the ring lanes of a roundabout imported from OSM ways are
 //! strongly connected, every entry leads onto them and every exit is reached from them (so
-//! from every entry every exit is reachable); mini-roundabouts stand on existing junctions
-//! with arms on existing lanes there; stop lines lie on existing lanes.
+//! from every entry every exit is reachable); mini-roundabouts, and only they, name their
+//! node; stop lines lie on existing lanes.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -231,35 +231,13 @@ pub fn check_invariants(map: &Map, step: &'static str) -> Result<(), MapError> {
             }
         }
     }
-    for (id, m) in &map.mini_roundabouts {
-        if map.roundabouts.contains_key(id) {
+    for (id, r) in &map.roundabouts {
+        let mini = r.kind == crate::model::RoundaboutKind::MiniRoundabout;
+        if mini != r.osm_node_id.is_some() {
             return fail(
                 step,
-                format!("mini-roundabout {id} shares its id with a ring"),
+                format!("roundabout {id}: a node id belongs to mini-roundabouts only"),
             );
-        }
-        let Some(j) = map.junctions.get(&m.junction) else {
-            return fail(
-                step,
-                format!(
-                    "mini-roundabout {id} (node {}) stands on missing junction {}",
-                    m.osm_node_id, m.junction
-                ),
-            );
-        };
-        for arm in m.entries.iter().chain(&m.exits) {
-            if arm.junction != m.junction
-                || !j.roads.contains(&arm.road)
-                || arm.lanes.iter().any(|l| !map.lanes.contains_key(l))
-            {
-                return fail(
-                    step,
-                    format!(
-                        "mini-roundabout {id} (node {}) has an arm on road {} that does not meet it",
-                        m.osm_node_id, arm.road
-                    ),
-                );
-            }
         }
     }
     for (id, s) in &map.stop_lines {

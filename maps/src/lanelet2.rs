@@ -1454,6 +1454,7 @@ fn build_roundabout<'a>(
         priority: RoundaboutPriority::Circulating,
         priority_source: PrioritySource::Tags,
         osm_way_ids: osm_way_ids.into_iter().collect(),
+        osm_node_id: None,
         roads: ring.iter().map(|&i| road_id(i)).collect(),
         circulating_lanes: primary.iter().map(|&i| lane_id(i)).collect(),
         ring_lanes: ring.iter().map(|&i| lane_id(i)).collect(),

@@ -12,7 +12,7 @@ use crate::geometry::Point;
 use crate::projection::Projection;
 
 /// Version of the native map file format; bump on any incompatible change.
-pub const MAP_FORMAT_VERSION: u32 = 2;
+pub const MAP_FORMAT_VERSION: u32 = 3;
 
 macro_rules! typed_id {
     ($($(#[$doc:meta])* $name:ident),* $(,)?) => {$(
@@ -206,7 +206,8 @@ pub enum RoundaboutKind {
     Roundabout,
     /// `junction=circular`: a ring where circulating traffic need not have priority.
     Circular,
-    /// A `highway=mini_roundabout` node (see [`MiniRoundabout`]).
+    /// A `highway=mini_roundabout` node, imported as a small ring of one lane round it
+    /// ([`Roundabout::osm_node_id`] names the node).
     MiniRoundabout,
 }
 
@@ -241,7 +242,11 @@ pub struct Roundabout {
     pub kind: RoundaboutKind,
     pub priority: RoundaboutPriority,
     pub priority_source: PrioritySource,
+    /// The ring's OSM ways (empty for a mini-roundabout, whose ring is made on import).
     pub osm_way_ids: Vec<i64>,
+    /// The `highway=mini_roundabout` node of a mini-roundabout.
+    #[serde(default)]
+    pub osm_node_id: Option<i64>,
     pub roads: Vec<RoadId>,
     /// One trip round the ring: circulating lanes, each followed (through a connection)
     /// by the next in the direction of travel, the last by the first.
@@ -258,22 +263,6 @@ pub struct Roundabout {
     pub centre: Point,
     pub radius_m: f64,
     pub clockwise: bool,
-}
-
-/// A `highway=mini_roundabout` node: the roads meeting there are driven round a painted
-/// (or slightly raised) centre, without a ring of lanes of its own.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MiniRoundabout {
-    /// Numbered after the rings of [`Map::roundabouts`], so summary ids stay distinct.
-    pub id: RoundaboutId,
-    pub osm_node_id: i64,
-    pub junction: JunctionId,
-    /// Per road, its lanes running into the node.
-    pub entries: Vec<RoundaboutArm>,
-    /// Per road, its lanes leaving the node.
-    pub exits: Vec<RoundaboutArm>,
-    pub priority: RoundaboutPriority,
-    pub priority_source: PrioritySource,
 }
 
 /// A tagged ring (or mini-roundabout node) with a problem: not closed, nodes missing from
@@ -378,9 +367,6 @@ pub struct Map {
     pub junctions: BTreeMap<JunctionId, Junction>,
     pub connections: BTreeMap<ConnectionId, Connection>,
     pub roundabouts: BTreeMap<RoundaboutId, Roundabout>,
-    /// `highway=mini_roundabout` nodes, by id (numbered after the rings).
-    #[serde(default)]
-    pub mini_roundabouts: BTreeMap<RoundaboutId, MiniRoundabout>,
     pub stop_lines: BTreeMap<StopLineId, StopLine>,
     pub markings: Vec<Marking>,
     pub report: ImportReport,
@@ -398,7 +384,6 @@ impl Map {
             junctions: BTreeMap::new(),
             connections: BTreeMap::new(),
             roundabouts: BTreeMap::new(),
-            mini_roundabouts: BTreeMap::new(),
             stop_lines: BTreeMap::new(),
             markings: Vec::new(),
             report: ImportReport::default(),

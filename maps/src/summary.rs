@@ -108,7 +108,7 @@ pub struct RoundaboutSummary {
     /// `roundabout`, `circular` (`junction=circular`) or `mini_roundabout`.
     #[serde(default)]
     pub kind: RoundaboutKind,
-    /// Most lanes side by side on any piece of the ring (0 for a mini-roundabout).
+    /// Most lanes side by side on any piece of the ring (1 for a mini-roundabout).
     #[serde(default)]
     pub ring_lanes: u8,
     /// Who goes first where an entry meets the ring: `circulating` or `entering`.
@@ -206,35 +206,11 @@ pub fn summarize(map: &Map) -> MapSummary {
             priority: r.priority,
             priority_source: r.priority_source,
             osm_way_ids: r.osm_way_ids.clone(),
-            osm_node_id: None,
+            osm_node_id: r.osm_node_id,
             centre: r2p(r.centre),
             radius_m: r2(r.radius_m),
             clockwise: r.clockwise,
         })
-        .chain(map.mini_roundabouts.values().map(|m| {
-            RoundaboutSummary {
-                id: m.id.0,
-                entries: m.entries.len(),
-                exits: m.exits.len(),
-                yield_lines: 0,
-                circulating_lanes: 0,
-                guessed: false,
-                source: RoundaboutSource::Tagged,
-                kind: RoundaboutKind::MiniRoundabout,
-                ring_lanes: 0,
-                priority: m.priority,
-                priority_source: m.priority_source,
-                osm_way_ids: Vec::new(),
-                osm_node_id: Some(m.osm_node_id),
-                centre: r2p(map
-                    .junctions
-                    .get(&m.junction)
-                    .map_or_else(Point::default, |j| j.point)),
-                radius_m: 0.0,
-                // Driven round anticlockwise where traffic keeps right, clockwise where it keeps left.
-                clockwise: map.driving_side == DrivingSide::Left,
-            }
-        }))
         .collect();
     let rep = &map.report;
     let skipped = SkippedSummary {

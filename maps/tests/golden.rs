@@ -89,6 +89,27 @@ fn frederiksted() {
     run_case("frederiksted", &committed_input("frederiksted"), true);
 }
 
+/// A two-lane ring (primary roads without a `lanes` tag) and a mini-roundabout near it, cut
+/// from the Andorra extract.
+#[test]
+fn andorra_rings() {
+    run_case("andorra_rings", &committed_input("andorra_rings"), true);
+    let map = import_file(&committed_input("andorra_rings"), &ImportOptions::default()).unwrap();
+    let kinds: Vec<(maps::RoundaboutKind, u8)> = map
+        .roundabouts
+        .values()
+        .map(|r| (r.kind, r.lanes_across))
+        .collect();
+    assert!(
+        kinds.contains(&(maps::RoundaboutKind::Roundabout, 2)),
+        "{kinds:?}"
+    );
+    assert!(
+        kinds.contains(&(maps::RoundaboutKind::MiniRoundabout, 1)),
+        "{kinds:?}"
+    );
+}
+
 /// The INTERACTION map may not be copied into the repository: only its summary is golden.
 #[test]
 fn interaction_ft() {

@@ -13,8 +13,8 @@ use std::f64::consts::PI;
 
 use crate::geometry::{Point, polyline_length, signed_area};
 use crate::model::{
-    Connection, ConnectionId, Direction, DrivingSide, JunctionId, LaneId, MiniRoundabout,
-    PrioritySource, RingProblem, RoadId, Roundabout, RoundaboutArm, RoundaboutId, RoundaboutKind,
+    Connection, ConnectionId, Direction, DrivingSide, JunctionId, LaneId, PrioritySource,
+    RingProblem, RoadId, Roundabout, RoundaboutArm, RoundaboutId, RoundaboutKind,
     RoundaboutPriority, RoundaboutSource, StopKind, StopLine, StopLineId, StopLineSource, Turn,
 };
 use crate::tags;
@@ -124,7 +124,12 @@ impl Builder<'_> {
                     .copied()
                     .collect();
                 roads.sort_unstable();
-                let kind = if ways.iter().all(|w| {
+                let kind = if self
+                    .minis
+                    .is_some_and(|m| ways.iter().all(|w| m.ring_of_way.contains_key(w)))
+                {
+                    RoundaboutKind::MiniRoundabout
+                } else if ways.iter().all(|w| {
                     self.osm
                         .ways
                         .get(w)
@@ -149,7 +154,11 @@ impl Builder<'_> {
                 }
             })
             .collect();
-        rings.sort_by(|a, b| a.ways.cmp(&b.ways));
+        // Mini-roundabouts after the tagged rings (they get the last ids).
+        rings.sort_by(|a, b| {
+            let mini = |r: &Ring| r.kind == RoundaboutKind::MiniRoundabout;
+            (mini(a), &a.ways).cmp(&(mini(b), &b.ways))
+        });
         for ring in &rings {
             if let Some(reason) = &ring.broken {
                 self.map.report.ring_problems.push(RingProblem {
@@ -540,16 +549,10 @@ impl Builder<'_> {
         let rings: Vec<Ring> = self
             .rings
             .iter()
-            .filter(|r| r.broken.is_none())
+            .filter(|r| r.broken.is_none() && r.kind != RoundaboutKind::MiniRoundabout)
             .cloned()
             .collect();
-        let mut next_of: BTreeMap<LaneId, Vec<LaneId>> = BTreeMap::new();
-        let mut prev_of: BTreeMap<LaneId, Vec<LaneId>> = BTreeMap::new();
-        for c in self.map.connections.values() {
-            next_of.entry(c.from).or_default().push(c.to);
-            prev_of.entry(c.to).or_default().push(c.from);
-        }
-        let graph = LaneGraph { next_of, prev_of };
+        let graph = self.lane_graph();
         for ring in rings {
             let imported = self.add_roundabout(&ring.roads, ring.source, ring.kind, &graph);
             for reason in ring.warnings {
@@ -568,52 +571,96 @@ impl Builder<'_> {
             .sort_by(|a, b| a.osm_way_ids.cmp(&b.osm_way_ids));
     }
 
-    /// Records every `highway=mini_roundabout` node at a junction of the map with the roads
-    /// meeting there; lists those on no road of the profile.
+    /// The connections between lanes, both ways.
+    fn lane_graph(&self) -> LaneGraph {
+        let mut next_of: BTreeMap<LaneId, Vec<LaneId>> = BTreeMap::new();
+        let mut prev_of: BTreeMap<LaneId, Vec<LaneId>> = BTreeMap::new();
+        for c in self.map.connections.values() {
+            next_of.entry(c.from).or_default().push(c.to);
+            prev_of.entry(c.to).or_default().push(c.from);
+        }
+        LaneGraph { next_of, prev_of }
+    }
+
+    /// Makes a roundabout of kind `mini_roundabout` of every ring made round a
+    /// `highway=mini_roundabout` node (numbered after the other rings), and lists the nodes
+    /// that could not be made into one, or stand on no road of the profile.
     pub fn find_mini_roundabouts(&mut self) {
+        let minis = self.minis;
+        let mut listed: BTreeSet<i64> = BTreeSet::new();
+        if let Some(m) = minis {
+            for p in &m.problems {
+                listed.extend(p.osm_node_id);
+                self.map.report.ring_problems.push(p.clone());
+            }
+        }
+        let ringed: BTreeSet<i64> = minis
+            .map(|m| m.ring_of_way.values().copied().collect())
+            .unwrap_or_default();
         let nodes: Vec<i64> = self
             .osm
             .nodes
             .iter()
-            .filter(|(_, n)| n.tags.is("highway", "mini_roundabout"))
+            .filter(|(id, n)| {
+                n.tags.is("highway", "mini_roundabout")
+                    && !ringed.contains(id)
+                    && !listed.contains(id)
+            })
             .map(|(&id, _)| id)
             .collect();
-        let mut next = self
-            .map
-            .roundabouts
-            .keys()
-            .next_back()
-            .map_or(0, |r| r.0 + 1);
         for node in nodes {
-            let Some(&j) = self.junction_of_node.get(&node) else {
-                self.map.report.ring_problems.push(RingProblem {
-                    osm_way_ids: Vec::new(),
-                    osm_node_id: Some(node),
-                    reason: format!(
-                        "mini-roundabout node {node} is on no road of the `{}` profile",
-                        self.options.profile.name
-                    ),
-                    imported: false,
-                });
-                continue;
-            };
-            let arms = self.arms_at(&[j], &BTreeSet::new());
-            let (priority, priority_source) = self.priority(&[], &arms);
-            let id = RoundaboutId(next);
-            next += 1;
-            self.map.mini_roundabouts.insert(
-                id,
-                MiniRoundabout {
-                    id,
-                    osm_node_id: node,
-                    junction: j,
-                    entries: arms.entries,
-                    exits: arms.exits,
-                    priority,
-                    priority_source,
-                },
-            );
+            self.map.report.ring_problems.push(RingProblem {
+                osm_way_ids: Vec::new(),
+                osm_node_id: Some(node),
+                reason: format!(
+                    "mini-roundabout node {node} is on no road of the `{}` profile",
+                    self.options.profile.name
+                ),
+                imported: false,
+            });
         }
+        let Some(minis) = minis else { return };
+        let node_of = |r: &Ring| {
+            r.ways
+                .first()
+                .and_then(|w| minis.ring_of_way.get(w))
+                .copied()
+        };
+        let mut rings: Vec<Ring> = self
+            .rings
+            .iter()
+            .filter(|r| r.broken.is_none() && r.kind == RoundaboutKind::MiniRoundabout)
+            .cloned()
+            .collect();
+        rings.sort_by_key(node_of);
+        let graph = self.lane_graph();
+        for ring in rings {
+            if !self.add_roundabout(&ring.roads, ring.source, ring.kind, &graph) {
+                continue;
+            }
+            if let Some(r) = self.map.roundabouts.values_mut().next_back() {
+                r.osm_node_id = node_of(&ring);
+                r.osm_way_ids.clear();
+            }
+        }
+    }
+
+    /// The last step: the ways made for mini-roundabouts leave the map. Roads of their rings
+    /// keep no way id, and problems of a ring name its node.
+    pub fn forget_made_ways(&mut self) {
+        let Some(minis) = self.minis else { return };
+        for road in self.map.roads.values_mut() {
+            road.osm_way_ids.retain(|w| !minis.is_made(*w));
+        }
+        for p in &mut self.map.report.ring_problems {
+            if let Some(node) = p.osm_way_ids.iter().find_map(|w| minis.ring_of_way.get(w)) {
+                p.osm_node_id = Some(*node);
+            }
+            p.osm_way_ids.retain(|w| !minis.is_made(*w));
+        }
+        let made = |w: &i64| minis.is_made(*w);
+        self.map.report.degenerate_ways.retain(|w| !made(w));
+        self.map.report.ways_missing_nodes.retain(|w| !made(w));
     }
 
     /// The car roads (not in `ring`) running into or out of the junctions `at`, one arm per
@@ -1008,6 +1055,7 @@ impl Builder<'_> {
                 priority,
                 priority_source,
                 osm_way_ids,
+                osm_node_id: None,
                 roads: ring.to_vec(),
                 circulating_lanes: cycle,
                 ring_lanes,
@@ -1513,12 +1561,32 @@ mod tests {
 <way id="21"><nd ref="4"/><nd ref="1"/><nd ref="5"/><tag k="highway" v="residential"/></way>
 </osm>"#;
         let map = import(xml);
-        let found: Vec<(i64, usize, usize)> = map
-            .mini_roundabouts
+        let found: Vec<(Option<i64>, usize, usize)> = map
+            .roundabouts
             .values()
             .map(|m| (m.osm_node_id, m.entries.len(), m.exits.len()))
             .collect();
-        assert_eq!(found, vec![(1, 4, 4), (11, 2, 2)]);
+        assert_eq!(found, vec![(Some(1), 4, 4), (Some(11), 2, 2)]);
+        for r in map.roundabouts.values() {
+            // A small ring of one lane, driven anticlockwise (traffic keeps right here),
+            // given way to on every entry, with no way id of its own.
+            assert_eq!(r.kind, RoundaboutKind::MiniRoundabout);
+            assert!(r.osm_way_ids.is_empty());
+            assert_eq!(r.lanes_across, 1);
+            assert!(!r.clockwise);
+            assert!(
+                (r.radius_m - super::super::mini::MINI_RING_RADIUS_M).abs() < 0.5,
+                "{}",
+                r.radius_m
+            );
+            assert_eq!(r.yield_lines.len(), r.entries.len());
+            for road in &r.roads {
+                assert!(map.roads[road].osm_way_ids.is_empty());
+            }
+        }
+        // The streets keep their own way ids on both sides of the ring.
+        let street_roads = map.roads.values().filter(|r| r.osm_way_ids == [20]).count();
+        assert_eq!(street_roads, 3);
         let s = crate::summary::summarize(&map);
         assert!(
             s.roundabouts
@@ -1528,6 +1596,50 @@ mod tests {
         assert_eq!(s.ring_problems.len(), 1);
         assert_eq!(s.ring_problems[0].osm_node_id, Some(12));
     }
+    #[test]
+    fn a_mini_roundabout_with_a_junction_next_to_it_stays_a_junction_and_is_listed() {
+        // Node 6, a junction of way 21 with way 22, lies 3 m from the mini-roundabout.
+        let xml = r#"<osm version="0.6">
+<node id="1" lat="50.0" lon="10.0"><tag k="highway" v="mini_roundabout"/></node>
+<node id="2" lat="50.001" lon="10.0"/><node id="3" lat="49.999" lon="10.0"/>
+<node id="4" lat="50.0" lon="10.001"/><node id="5" lat="50.0" lon="9.999"/>
+<node id="6" lat="50.0" lon="10.000042"/><node id="7" lat="50.001" lon="10.001"/>
+<way id="20"><nd ref="2"/><nd ref="1"/><nd ref="3"/><tag k="highway" v="residential"/></way>
+<way id="21"><nd ref="4"/><nd ref="6"/><nd ref="1"/><nd ref="5"/><tag k="highway" v="residential"/></way>
+<way id="22"><nd ref="6"/><nd ref="7"/><tag k="highway" v="residential"/></way>
+</osm>"#;
+        let map = import(xml);
+        assert!(map.roundabouts.is_empty());
+        let s = crate::summary::summarize(&map);
+        assert_eq!(s.ring_problems.len(), 1);
+        let p = &s.ring_problems[0];
+        assert_eq!(p.osm_node_id, Some(1));
+        assert!(!p.imported);
+        assert!(
+            p.reason.contains("node 1") && p.reason.contains("within"),
+            "{}",
+            p.reason
+        );
+        // The node is still the junction of both streets.
+        assert!(map.junctions.values().any(|j| j.osm_node_id == Some(1)));
+    }
+
+    #[test]
+    fn a_mini_roundabout_where_traffic_keeps_left_is_driven_clockwise() {
+        let xml = r#"<osm version="0.6">
+<node id="1" lat="51.5" lon="-0.1"><tag k="highway" v="mini_roundabout"/></node>
+<node id="2" lat="51.501" lon="-0.1"/><node id="3" lat="51.499" lon="-0.1"/>
+<node id="4" lat="51.5" lon="-0.099"/>
+<way id="20"><nd ref="2"/><nd ref="1"/><nd ref="3"/><tag k="highway" v="residential"/></way>
+<way id="21"><nd ref="1"/><nd ref="4"/><tag k="highway" v="residential"/></way>
+</osm>"#;
+        let map = import(xml);
+        assert_eq!(map.driving_side, crate::model::DrivingSide::Left);
+        let r = map.roundabouts.values().next().expect("a ring");
+        assert!(r.clockwise);
+        assert_eq!((r.entries.len(), r.exits.len()), (3, 3));
+    }
+
     #[test]
     fn a_chord_across_a_ring_is_listed_and_the_ring_still_imported() {
         // A one-way chord from ring node 1 (the closed way's end) to ring node 5, tagged too.

@@ -11,6 +11,7 @@ use crate::osm::{OsmData, Tags};
 use crate::projection::{LatLon, Projection};
 use crate::tags;
 
+use super::mini::MiniRings;
 use super::{Clip, ImportOptions};
 
 /// Per road, what the later steps need from its way.
@@ -53,6 +54,8 @@ pub(crate) struct Builder<'a> {
     pub junction_of_node: BTreeMap<i64, JunctionId>,
     /// Tagged rings found by `find_rings`, in order of their ways, then the guessed loops.
     pub rings: Vec<super::roundabouts::Ring>,
+    /// The rings made of mini-roundabout nodes (`None` when the data has none).
+    pub minis: Option<&'a MiniRings>,
 }
 
 impl<'a> Builder<'a> {
@@ -65,7 +68,11 @@ impl<'a> Builder<'a> {
     }
 
     /// Selects ways, drops broken ones (counted), splits at shared nodes and self-touches.
-    pub fn select_roads(osm: &'a OsmData, options: &'a ImportOptions) -> Result<Self, MapError> {
+    pub fn select_roads(
+        osm: &'a OsmData,
+        options: &'a ImportOptions,
+        minis: Option<&'a MiniRings>,
+    ) -> Result<Self, MapError> {
         let mut report = crate::model::ImportReport {
             invalid_nodes: osm.invalid_nodes.len(),
             ..Default::default()
@@ -182,6 +189,7 @@ impl<'a> Builder<'a> {
             info: BTreeMap::new(),
             junction_of_node: BTreeMap::new(),
             rings: Vec::new(),
+            minis,
         };
         let mut pieces: Vec<(i64, Vec<i64>)> = Vec::new();
         for (way_id, r) in &runs {
@@ -222,6 +230,7 @@ impl<'a> Builder<'a> {
             // Zero-length segments (distinct nodes at one position) are dropped; the end nodes stay.
             crate::geometry::dedup_points(&mut line, 1e-6);
             if line.len() < 2 || polyline_length(&line) < 0.05 {
+                let way_id = minis.map_or(way_id, |m| m.original_way(way_id));
                 if !report.degenerate_ways.contains(&way_id) {
                     report.degenerate_ways.push(way_id);
                 }
@@ -243,7 +252,7 @@ impl<'a> Builder<'a> {
                 Road {
                     id,
                     source: RoadSource::OsmWay,
-                    osm_way_ids: vec![way_id],
+                    osm_way_ids: vec![minis.map_or(way_id, |m| m.original_way(way_id))],
                     highway: highway.clone(),
                     name: way.tags.get("name").map(str::to_owned),
                     reference_line: line,
