@@ -2,8 +2,8 @@
 //!
 //! A mini-roundabout is mapped as one node where the roads meet, but it is driven round a
 //! painted (or slightly raised) centre. Before any road is made, each such node is replaced
-//! by a closed one-way way of one lane round it, [`MINI_RING_RADIUS_M`] from the node (less
-//! where another junction is closer), turning the way traffic turns round a roundabout on
+//! by a closed one-way way of one lane round it, [`MINI_RING_RADIUS_M`] from the node (more
+//! round wide roads, less where another junction is closer), turning the way traffic turns round a roundabout on
 //! this side of the road; the ways that met at the node are cut where they reach that
 //! circle. The rest of the import then treats it as any ring (lanes, connections, yield
 //! lines on its entries), and `find_mini_roundabouts` marks it as a mini-roundabout with its
@@ -25,9 +25,11 @@ use crate::tags;
 use super::ImportOptions;
 
 /// Radius of the circle driven round a mini-roundabout node (the centre line of its one
-/// lane), m: a small island of 2-4 m and a lane round it.
+/// lane), m: a small island of 2-4 m and a lane round it; at least 2 m more than half the
+/// widest carriageway meeting there.
 pub const MINI_RING_RADIUS_M: f64 = 6.0;
-/// The circle shrinks to keep clear of another junction, but not below this radius, m.
+/// The circle shrinks to keep clear of another junction, but not below this radius, nor
+/// below 1 m more than half the widest carriageway, m.
 pub const MIN_MINI_RING_RADIUS_M: f64 = 4.0;
 /// Largest angle between two nodes of a ring way, degrees (its pieces are polylines).
 const MAX_STEP_DEG: f64 = 20.0;
@@ -201,8 +203,19 @@ fn ring_one(
     if let Some(w) = ways.iter().find(|w| tags::is_roundabout(&osm.ways[w].tags)) {
         return Err(format!("it lies on the ring way {w}"));
     }
-    // The circle keeps clear of every other junction or way end.
-    let mut radius = MINI_RING_RADIUS_M;
+    // The circle clears the widest carriageway meeting there by a metre or two, and keeps
+    // clear of every other junction or way end.
+    let half_width = ways
+        .iter()
+        .map(|w| {
+            let t = &osm.ways[w].tags;
+            let highway = t.get("highway").unwrap_or("road");
+            let (f, b) = tags::lane_counts(t, highway);
+            f64::from(f + b) * tags::lane_width(t, highway, f + b) / 2.0
+        })
+        .fold(0.0, f64::max);
+    let smallest = MIN_MINI_RING_RADIUS_M.max(half_width + 1.0);
+    let mut radius = MINI_RING_RADIUS_M.max(half_width + 2.0);
     for w in ways {
         for &n in &osm.ways[w].nodes {
             if n == node || !(uses.get(&n).is_some_and(|&u| u >= 2) || ends.contains(&n)) {
@@ -215,7 +228,7 @@ fn ring_one(
             }
         }
     }
-    if radius < MIN_MINI_RING_RADIUS_M {
+    if radius < smallest {
         return Err(format!(
             "another junction or way end lies within {:.1} m of it",
             radius / 0.8
