@@ -117,6 +117,15 @@ impl RoundaboutSet {
             .keys()
             .filter(|id| only.is_none_or(|o| o == **id))
         {
+            // The world's drivers keep the roundabout rule: entering traffic gives way.
+            if let Some(r) = map.roundabouts.get(id)
+                && r.priority == maps::RoundaboutPriority::Entering
+            {
+                problems.push(format!(
+                    "roundabout {id} gives entering traffic priority (traffic signals or give-way signs on its ring, from the map's tags); the simulator drives only rings where circulating traffic has priority"
+                ));
+                continue;
+            }
             match RoundaboutLayout::new(&map, *id, layout) {
                 Ok(layout) => {
                     // Routes rounded off at kinks may graze the mapped lanes' edges: a car's
@@ -304,5 +313,30 @@ impl EgoView {
     /// The newest frame (`[layer, row, column]`, see [`BevConfig::layers`]).
     pub fn newest(&self) -> &[u8] {
         self.stack.newest()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A ring whose entering traffic has priority is refused by name, not driven by the
+    /// wrong rule.
+    #[test]
+    fn a_ring_giving_entering_traffic_priority_is_refused() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../data/osm/montlake_roundabout.osm.pbf");
+        let mut map = maps::import_file(&path, &Default::default()).expect("montlake imports");
+        let layout = LayoutConfig::default();
+        let view = BevConfig::default();
+        assert!(RoundaboutSet::new(Arc::new(map.clone()), &layout, &view).is_ok());
+        for r in map.roundabouts.values_mut() {
+            r.priority = maps::RoundaboutPriority::Entering;
+        }
+        let Err(err) = RoundaboutSet::new(Arc::new(map), &layout, &view) else {
+            panic!("a ring giving entering traffic priority was accepted");
+        };
+        let err = err.to_string();
+        assert!(err.contains("entering traffic priority"), "{err}");
     }
 }
