@@ -36,6 +36,9 @@ use crate::spatial::UniformGrid;
 const OTHERS_OBSTACLE_HORIZON_M: f64 = 8.0;
 /// Below this speed a driver has stopped (and a commitment to a gap is reconsidered).
 const STOPPED_MPS: f64 = 0.1;
+/// Below this speed a car on another's path is in its way whatever its heading (on
+/// multi-lane rings: see [`World::obstacle_on_path`]), m/s.
+const STANDING_MPS: f64 = 0.5;
 /// Drivers look for cars in the other lanes once a lane change on the ring is this close
 /// ahead of their front, m.
 const LANE_CHANGE_LOOK_M: f64 = 25.0;
@@ -733,7 +736,17 @@ impl World {
     /// longer finds once that car is on its exit piece. The gap runs from `i`'s front to
     /// the first sampled point of the path (every 0.5 m) inside the footprint, grown by
     /// half of `i`'s width.
+    ///
+    /// On a multi-lane ring a standing car is in the way at any heading, except for a car
+    /// that has not merged yet when the standing one, past its own merge point, stands for
+    /// it (it waits for that car to go: the one entering goes first).
     pub fn obstacle_on_path(&self, i: usize, horizon_m: f64) -> Option<Leader> {
+        self.obstacle_on_path_for(i, horizon_m, true)
+    }
+
+    /// [`World::obstacle_on_path`]; `look_back` whether to check that a standing car stands
+    /// for `i`.
+    fn obstacle_on_path_for(&self, i: usize, horizon_m: f64, look_back: bool) -> Option<Leader> {
         const STEP_M: f64 = 0.5;
         let me = &self.vehicles[i];
         let path = &self.layout.routes[me.route].path;
@@ -761,11 +774,29 @@ impl World {
                 other.length + me.width,
                 other.width + me.width,
             );
+            // On a multi-lane ring a car standing on the path is in the way at any angle:
+            // imported arms whose entry and exit lanes meet short of the ring put cars
+            // waiting to enter on the way of cars leaving.
+            let standing = self.multi_lane && other.speed < STANDING_MPS;
             let hit = ahead.iter().find_map(|&(d, p, heading)| {
                 (zone.contains(p)
-                    && crate::path::wrap_angle(other.heading - heading).abs() < 75f64.to_radians())
+                    && (standing
+                        || crate::path::wrap_angle(other.heading - heading).abs()
+                            < 75f64.to_radians()))
                 .then_some(d)
             });
+            let merged = |v: &Vehicle| v.s >= self.layout.routes[v.route].merge_s;
+            if hit.is_some()
+                && standing
+                && look_back
+                && !merged(me)
+                && merged(other)
+                && self
+                    .obstacle_on_path_for(j, OTHERS_OBSTACLE_HORIZON_M, false)
+                    .is_some_and(|l| l.index == i)
+            {
+                continue;
+            }
             if let Some(gap) = hit
                 && best.is_none_or(|b| gap < b.gap_m)
             {
@@ -818,12 +849,35 @@ impl World {
                     && let Some(their_d) = self
                         .distance_to_piece(j, key)
                         .filter(|&d| d > 0.0 && d < start)
+                    && (!self.multi_lane
+                        || self.vehicles[i].id < other.id
+                        || !self.merges_ahead_of(i, j))
                 {
                     consider(j, start - their_d);
                 }
             }
         }
         best
+    }
+
+    /// Whether committed vehicle `i` is about to merge ahead of vehicle `j`: into a lane
+    /// `j` is about to enter, from another piece, nearer to its start. Two vehicles each
+    /// about to merge ahead of the other (into different lanes whose connections cross)
+    /// would wait for each other for ever; on a multi-lane ring, the older one (lower id)
+    /// goes first.
+    fn merges_ahead_of(&self, i: usize, j: usize) -> bool {
+        let Some(&(their_key, _)) = self.lookahead[i].first() else {
+            return false;
+        };
+        self.vehicles[i].committed
+            && !self.waiting_to_change.get(i).copied().unwrap_or(false)
+            && self.lookahead[j].iter().skip(1).any(|&(key, start)| {
+                key != their_key
+                    && matches!(key, PieceKey::Lane(_))
+                    && self
+                        .distance_to_piece(i, key)
+                        .is_some_and(|d| d > 0.0 && d < start)
+            })
     }
 
     /// A driver who committed to a gap but had to stop before reaching the yield line
@@ -875,6 +929,16 @@ impl World {
             let my_time = ((speed * speed + 2.0 * accel * to_clear).sqrt() - speed) / accel;
             let clear = self.vehicles.iter().enumerate().all(|(j, o)| {
                 if j == i || !o.committed {
+                    return true;
+                }
+                // Stopped for this very car, standing in its way: it waits for this car to
+                // go (see `obstacle_on_path`).
+                if self.multi_lane
+                    && o.speed < STOPPED_MPS
+                    && self
+                        .obstacle_on_path(j, OTHERS_OBSTACLE_HORIZON_M)
+                        .is_some_and(|l| l.index == i)
+                {
                     return true;
                 }
                 // Where its car touches one entering here (a route not driving the merge

@@ -30,9 +30,10 @@ const EPISODES_PER_RING: u64 = 40;
 const TRAFFIC_RUN_S: f64 = 300.0;
 /// A vehicle standing this long with nothing to wait for is stuck, s.
 const STUCK_LIMIT_S: f64 = 60.0;
-/// The ring run at full size: a two-lane ring on a main road with five arms, lane
-/// changes in and out, and traffic leaving from both lanes.
-const FULL_SIZE_RING: u32 = 15;
+/// The ring run at full size (`MULTILANE_RING` picks another): a two-lane ring of 14 m
+/// radius with four entries and four exits, 31 routes, lane changes on the ring and exits
+/// from the inner lane.
+const FULL_SIZE_RING: u32 = 7;
 /// Seconds of traffic alone at full size.
 const FULL_SIZE_TRAFFIC_S: f64 = 36_000.0;
 
@@ -58,6 +59,9 @@ struct Figures {
     /// The ego overlapping a vehicle without the episode ending in a crash.
     uncounted_ego_overlaps: u64,
     stuck: u64,
+    /// Vehicles that stood still more than [`STUCK_LIMIT_S`] at a stretch for whatever
+    /// reason (waiting at a yield line, or in a queue, included).
+    stood_long: u64,
     wrong_exits: u64,
     left_ring: u64,
 }
@@ -74,6 +78,7 @@ impl std::ops::AddAssign for Figures {
         self.vanished += o.vanished;
         self.uncounted_ego_overlaps += o.uncounted_ego_overlaps;
         self.stuck += o.stuck;
+        self.stood_long += o.stood_long;
         self.wrong_exits += o.wrong_exits;
         self.left_ring += o.left_ring;
     }
@@ -86,6 +91,9 @@ struct Watch {
     /// Per vehicle id: when it stopped with nothing to wait for.
     stopped_since: BTreeMap<u32, f64>,
     stuck: BTreeSet<u32>,
+    /// Per vehicle id: when it stopped, whatever the reason.
+    standing_since: BTreeMap<u32, f64>,
+    stood_long: BTreeSet<u32>,
     /// Pairs of other vehicles overlapping at the last look.
     overlapping: BTreeSet<(u32, u32)>,
     /// Per vehicle id at the last look: whether it was about to reach the end of its
@@ -171,6 +179,14 @@ impl Watch {
                 || world.merging_leader(i).is_some()
                 || world.obstacle_on_path(i, 12.0).is_some()
                 || world.lane_change_wait(i).is_some();
+            if v.speed < 0.1 {
+                let since = *self.standing_since.entry(v.id).or_insert(now);
+                if now - since > STUCK_LIMIT_S {
+                    self.stood_long.insert(v.id);
+                }
+            } else {
+                self.standing_since.remove(&v.id);
+            }
             if v.speed < 0.1 && !has_reason {
                 let since = *self.stopped_since.entry(v.id).or_insert(now);
                 if now - since > STUCK_LIMIT_S {
@@ -200,6 +216,7 @@ impl Watch {
             uncounted_overlaps: self.uncounted_overlaps,
             vanished: self.vanished,
             stuck: self.stuck.len() as u64,
+            stood_long: self.stood_long.len() as u64,
             wrong_exits: self.exited.values().filter(|ok| !**ok).count() as u64,
             left_ring: self.exited.len() as u64,
             ..Figures::default()
@@ -400,7 +417,12 @@ fn insertion_runs_cleanly_on_multi_lane_rings() {
 
 /// `n` episodes per baseline on [`FULL_SIZE_RING`], and a long run of its traffic alone.
 fn full_size(map: &Arc<Map>, n: u64) {
-    let id = RoundaboutId(FULL_SIZE_RING);
+    let id = RoundaboutId(
+        std::env::var("MULTILANE_RING")
+            .ok()
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(FULL_SIZE_RING),
+    );
     let ring = &map.roundabouts[&id];
     assert_eq!(ring.lanes_across, 2, "a two-lane ring");
     println!(
