@@ -36,6 +36,9 @@ use crate::spatial::UniformGrid;
 const OTHERS_OBSTACLE_HORIZON_M: f64 = 8.0;
 /// Below this speed a driver has stopped (and a commitment to a gap is reconsidered).
 const STOPPED_MPS: f64 = 0.1;
+/// A car does not spawn where another car would drive over it within this distance of
+/// that car's front (on multi-lane rings), m.
+const SPAWN_LOOK_M: f64 = 25.0;
 /// Below this speed a car on another's path is in its way whatever its heading (on
 /// multi-lane rings: see [`World::obstacle_on_path`]), m/s.
 const STANDING_MPS: f64 = 0.5;
@@ -1289,6 +1292,21 @@ impl World {
             .vehicles
             .iter()
             .any(|o| o.footprint().overlaps(&footprint));
+        // On a multi-lane ring, nor where a car of another route is about to drive (where
+        // an exit runs over the start of another arm's approach): it would stop there for
+        // the new car, which waits behind the queue that car holds up.
+        let in_the_way = self.multi_lane
+            && self.vehicles.iter().any(|o| {
+                let path = &layout.routes[o.route].path;
+                let front = o.s + o.length / 2.0;
+                let to = (front + SPAWN_LOOK_M).min(path.length());
+                let steps = ((to - o.s) / 1.0).ceil().max(0.0) as usize;
+                (1..=steps).any(|k| {
+                    let (q, g) = path.pose_at((o.s + k as f64).min(to));
+                    OrientedBox::new(q, g, o.length, o.width).overlaps(&footprint)
+                })
+            });
+        let touching = touching || in_the_way;
         if touching || ahead.is_some_and(|(gap, _)| gap < self.config.spawn_clearance_m) {
             self.stats.spawns_blocked += 1;
             return;
