@@ -10,6 +10,11 @@
 //! permitted, random) on one two-lane ring ([`FULL_SIZE_RING`]), with the same checks, and
 //! prints each baseline's reached / crashed / timed-out shares with 95 % intervals:
 //! `MULTILANE_EPISODES=10000 cargo test -p sim --release --test multilane_rings -- --nocapture`.
+//! Run so on ring 7 (60,000 episodes in high traffic, ego aggressiveness 0.5, then 10 hours
+//! of traffic alone), the world counted 7,735 collisions in the episodes (warm-ups
+//! included) and 127 in the traffic run, with no overlap uncounted, no vehicle stuck and no
+//! wrong exit; the rules crashed in 3.5 % (25 m) to 6.8 % (10 m) of the episodes, always
+//! permitted in 8.2 %, random in 3.5 % (timing out in 95 %).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout)]
 
 use std::collections::{BTreeMap, BTreeSet};
