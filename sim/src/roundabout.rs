@@ -108,6 +108,17 @@ impl RingRoute {
             .map(|(_, s)| *s)
     }
 
+    /// Where ring lane `lane` ends along this route (where the piece after it starts), if
+    /// the route drives it.
+    pub fn ring_lane_end(&self, lane: LaneId) -> Option<f64> {
+        self.ring_lane_start(lane)?;
+        self.path
+            .pieces()
+            .iter()
+            .find(|p| p.key == PieceKey::Lane(lane))
+            .map(|p| p.s_end)
+    }
+
     /// The ring lanes a car at this yield line gives way to: the merge lane, then the
     /// lanes it crosses to reach it.
     pub fn yield_lanes(&self) -> impl Iterator<Item = LaneId> + '_ {
@@ -129,6 +140,8 @@ pub struct RoundaboutLayout {
     /// Each ring lane's place across its ring road: 0 for the outermost lane (every lane
     /// of a single-lane ring), 1 for the one inside it, and so on.
     pub ring_lane_ranks: BTreeMap<LaneId, u8>,
+    /// Each ring lane's road: lanes of one road run side by side.
+    pub ring_lane_roads: BTreeMap<LaneId, maps::RoadId>,
     /// The box holding every route.
     pub bounds: Bounds,
 }
@@ -202,6 +215,11 @@ impl RoundaboutLayout {
             routes,
             routes_by_entry,
             ring_lane_ranks: ranks,
+            ring_lane_roads: rb
+                .ring_lanes
+                .iter()
+                .filter_map(|l| Some((*l, map.lanes.get(l)?.road)))
+                .collect(),
             bounds,
         })
     }
@@ -541,6 +559,12 @@ const KEEP_LANE_COST_M: f64 = 10_000.0;
 /// Added for each change of lane when the route may take an inner lane, m: enough that a
 /// route changes lanes only where the inner lane saves more than the changes cost.
 const LANE_CHANGE_COST_M: f64 = 2.0;
+/// Added for entering the ring onto an inner lane, and for leaving it from one, m: routes
+/// join and leave by the outer lane wherever the map lets them (on the imported two-lane
+/// rings, the connections into and out of the inner lane cut across the outer lane's
+/// traffic and across the other lane of the arm, where cars wait to enter), and use the
+/// inner lane by changing lanes on the ring.
+const INNER_LANE_ARM_COST_M: f64 = 1_000.0;
 /// A route that passes more exits than this before its own takes an inner lane where the
 /// ring has one.
 const EXITS_PASSED_ON_OUTER_LANE: usize = 1;
@@ -672,10 +696,10 @@ fn shortest_through_ring(
                 continue;
             };
             let mut nd = d + lane_len + conn.length_m;
-            if let (Some(a), Some(b)) = (ranks.get(&conn.from), ranks.get(&conn.to))
-                && a != b
-            {
-                nd += lane_change_cost;
+            match (ranks.get(&conn.from), ranks.get(&conn.to)) {
+                (Some(a), Some(b)) if a != b => nd += lane_change_cost,
+                (Some(r), None) | (None, Some(r)) if *r > 0 => nd += INNER_LANE_ARM_COST_M,
+                _ => {}
             }
             if best.get(&next).is_none_or(|(b, _)| nd < *b) {
                 best.insert(next, (nd, Some((state, *c))));

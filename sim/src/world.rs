@@ -36,6 +36,19 @@ use crate::spatial::UniformGrid;
 const OTHERS_OBSTACLE_HORIZON_M: f64 = 8.0;
 /// Below this speed a driver has stopped (and a commitment to a gap is reconsidered).
 const STOPPED_MPS: f64 = 0.1;
+/// A car does not spawn where another car would drive over it within this distance of
+/// that car's front (on multi-lane rings), m.
+const SPAWN_LOOK_M: f64 = 25.0;
+/// Below this speed a car on another's path is in its way whatever its heading (on
+/// multi-lane rings: see [`World::obstacle_on_path`]), m/s.
+const STANDING_MPS: f64 = 0.5;
+/// Drivers look for cars in the other lanes once a lane change on the ring is this close
+/// ahead of their front, m.
+const LANE_CHANGE_LOOK_M: f64 = 25.0;
+/// A driver changes lanes in front of a car in the other lane only with at least this gap
+/// to it, m, plus [`LANE_CHANGE_HEADWAY_S`] of that car's speed.
+const LANE_CHANGE_GAP_M: f64 = 1.0;
+const LANE_CHANGE_HEADWAY_S: f64 = 1.2;
 
 /// Traffic density, as in the Parma study: at most 4 / 6 / 8 other vehicles in the
 /// roundabout (its approaches, ring and exits) at once.
@@ -325,11 +338,18 @@ impl Vehicle {
 
 /// Counters over a world's life.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct WorldStats {
     pub spawned: u64,
+    /// Vehicles that left by the end of their route.
     pub despawned: u64,
     /// Spawns skipped because the chosen approach was occupied near its start.
     pub spawns_blocked: u64,
+    /// Collisions between other vehicles (not the ego): pairs whose footprints came to
+    /// overlap, each pair counted once (see [`World::step_ego`]).
+    pub collisions: u64,
+    /// Other vehicles taken out of the world after a collision.
+    pub crashed: u64,
 }
 
 /// The nearest vehicle ahead of another: its index, the bumper-to-bumper gap and how fast
@@ -364,6 +384,12 @@ pub struct World {
     /// The ring has lanes side by side somewhere (see [`World::entering_across`]).
     multi_lane: bool,
     found: Vec<u32>,
+    /// Pairs of other vehicles (ids, lower first) counted as a collision and still
+    /// overlapping (left in place because one of them touches the ego).
+    colliding: Vec<(u32, u32)>,
+    /// Per vehicle, whether it waits to change lanes ([`World::lane_change_wait`]),
+    /// refreshed with the lookahead.
+    waiting_to_change: Vec<bool>,
 }
 
 impl World {
@@ -392,6 +418,8 @@ impl World {
             stats: WorldStats::default(),
             lookahead: Vec::new(),
             found: Vec::new(),
+            colliding: Vec::new(),
+            waiting_to_change: Vec::new(),
         }
     }
 
@@ -532,8 +560,9 @@ impl World {
     }
 
     /// Advances one step: the ego (if any) with acceleration `ego_accel` (clamped to its
-    /// limits), everyone else by their driver model; then vehicles past their exit leave
-    /// and new ones may arrive.
+    /// limits), everyone else by their driver model; then vehicles past their exit leave,
+    /// new ones may arrive, and collisions between others are counted and cleared (see
+    /// [`World::step_ego`]).
     pub fn step(&mut self, ego_accel: f64) {
         self.step_ego(EgoCommand {
             accel: Some(ego_accel),
@@ -543,6 +572,14 @@ impl World {
 
     /// Like [`World::step`], with the ego's steering optionally chosen by the caller
     /// instead of the pure pursuit controller.
+    ///
+    /// At the end of the step, every pair of other vehicles (not the ego) whose footprints
+    /// overlap and did not already at the end of the last step counts as one collision
+    /// ([`WorldStats::collisions`]), and both vehicles are taken out of the world
+    /// ([`WorldStats::crashed`]), as a crash ends the ego's episode: no overlap goes on
+    /// uncounted, and no wreck is left to block the ring. A vehicle touching the ego is left
+    /// where it is, so that the caller sees the ego's crash ([`World::collision_with`]); its
+    /// pair with another vehicle is not counted again while they still overlap.
     pub fn step_ego(&mut self, ego: EgoCommand) {
         let dt = self.config.step_s;
         let ego_driven = ego.accel.is_none();
@@ -579,7 +616,45 @@ impl World {
         }
         self.despawn();
         self.spawn();
+        self.clear_collisions();
         self.refresh_lookahead();
+    }
+
+    /// Counts the new collisions between other vehicles and takes those vehicles out (see
+    /// [`World::step_ego`]).
+    fn clear_collisions(&mut self) {
+        let pairs = self.overlapping_others();
+        if pairs.is_empty() {
+            self.colliding.clear();
+            return;
+        }
+        let touching_ego: Vec<u32> = match self.ego_index() {
+            Some(e) => {
+                let ego = self.vehicles[e].footprint();
+                self.vehicles
+                    .iter()
+                    .filter(|v| !v.is_ego() && v.footprint().overlaps(&ego))
+                    .map(|v| v.id)
+                    .collect()
+            }
+            None => Vec::new(),
+        };
+        let mut out: Vec<u32> = Vec::new();
+        let mut kept = Vec::new();
+        for (a, b) in pairs {
+            if !self.colliding.contains(&(a, b)) {
+                self.stats.collisions += 1;
+            }
+            if touching_ego.contains(&a) || touching_ego.contains(&b) {
+                kept.push((a, b));
+            } else {
+                out.extend([a, b]);
+            }
+        }
+        self.colliding = kept;
+        let before = self.vehicles.len();
+        self.vehicles.retain(|v| v.is_ego() || !out.contains(&v.id));
+        self.stats.crashed += (before - self.vehicles.len()) as u64;
     }
 
     /// Moves the ego one step with acceleration `accel`: the commanded steering, or pure
@@ -632,6 +707,9 @@ impl World {
                 out.push((p.key, d));
             }
         }
+        self.waiting_to_change = (0..self.vehicles.len())
+            .map(|i| self.lane_change_wait(i).is_some())
+            .collect();
     }
 
     /// Where vehicle `j`'s route starts piece `key` relative to `j`'s centre, if ahead
@@ -661,7 +739,17 @@ impl World {
     /// longer finds once that car is on its exit piece. The gap runs from `i`'s front to
     /// the first sampled point of the path (every 0.5 m) inside the footprint, grown by
     /// half of `i`'s width.
+    ///
+    /// On a multi-lane ring a standing car is in the way at any heading, except for a car
+    /// that has not merged yet when the standing one, past its own merge point, stands for
+    /// it (it waits for that car to go: the one entering goes first).
     pub fn obstacle_on_path(&self, i: usize, horizon_m: f64) -> Option<Leader> {
+        self.obstacle_on_path_for(i, horizon_m, true)
+    }
+
+    /// [`World::obstacle_on_path`]; `look_back` whether to check that a standing car stands
+    /// for `i`.
+    fn obstacle_on_path_for(&self, i: usize, horizon_m: f64, look_back: bool) -> Option<Leader> {
         const STEP_M: f64 = 0.5;
         let me = &self.vehicles[i];
         let path = &self.layout.routes[me.route].path;
@@ -689,11 +777,29 @@ impl World {
                 other.length + me.width,
                 other.width + me.width,
             );
+            // On a multi-lane ring a car standing on the path is in the way at any angle:
+            // imported arms whose entry and exit lanes meet short of the ring put cars
+            // waiting to enter on the way of cars leaving.
+            let standing = self.multi_lane && other.speed < STANDING_MPS;
             let hit = ahead.iter().find_map(|&(d, p, heading)| {
                 (zone.contains(p)
-                    && crate::path::wrap_angle(other.heading - heading).abs() < 75f64.to_radians())
+                    && (standing
+                        || crate::path::wrap_angle(other.heading - heading).abs()
+                            < 75f64.to_radians()))
                 .then_some(d)
             });
+            let merged = |v: &Vehicle| v.s >= self.layout.routes[v.route].merge_s;
+            if hit.is_some()
+                && standing
+                && look_back
+                && !merged(me)
+                && merged(other)
+                && self
+                    .obstacle_on_path_for(j, OTHERS_OBSTACLE_HORIZON_M, false)
+                    .is_some_and(|l| l.index == i)
+            {
+                continue;
+            }
             if let Some(gap) = hit
                 && best.is_none_or(|b| gap < b.gap_m)
             {
@@ -741,16 +847,40 @@ impl World {
                     && their_key != key
                     && k > 0
                     && other.committed
+                    && !self.waiting_to_change.get(j).copied().unwrap_or(false)
                     && matches!(key, PieceKey::Lane(_))
                     && let Some(their_d) = self
                         .distance_to_piece(j, key)
                         .filter(|&d| d > 0.0 && d < start)
+                    && (!self.multi_lane
+                        || self.vehicles[i].id < other.id
+                        || !self.merges_ahead_of(i, j))
                 {
                     consider(j, start - their_d);
                 }
             }
         }
         best
+    }
+
+    /// Whether committed vehicle `i` is about to merge ahead of vehicle `j`: into a lane
+    /// `j` is about to enter, from another piece, nearer to its start. Two vehicles each
+    /// about to merge ahead of the other (into different lanes whose connections cross)
+    /// would wait for each other for ever; on a multi-lane ring, the older one (lower id)
+    /// goes first.
+    fn merges_ahead_of(&self, i: usize, j: usize) -> bool {
+        let Some(&(their_key, _)) = self.lookahead[i].first() else {
+            return false;
+        };
+        self.vehicles[i].committed
+            && !self.waiting_to_change.get(i).copied().unwrap_or(false)
+            && self.lookahead[j].iter().skip(1).any(|&(key, start)| {
+                key != their_key
+                    && matches!(key, PieceKey::Lane(_))
+                    && self
+                        .distance_to_piece(i, key)
+                        .is_some_and(|d| d > 0.0 && d < start)
+            })
     }
 
     /// A driver who committed to a gap but had to stop before reaching the yield line
@@ -773,14 +903,21 @@ impl World {
     /// ego decides this way only when its driver model drives it (`ego_driven`).
     fn decide_gaps(&mut self, ego_driven: bool) {
         self.reconsider_stopped_commitments();
-        let mut commit = Vec::new();
+        let (mut commit, mut withdraw) = (Vec::new(), Vec::new());
         for (i, v) in self.vehicles.iter().enumerate() {
-            if v.committed || (v.is_ego() && !ego_driven) {
+            if v.is_ego() && (v.committed || !ego_driven) {
                 continue;
             }
             let route = &self.layout.routes[v.route];
             let to_line = route.yield_s - v.front_s();
             if to_line > self.config.decision_distance_m {
+                continue;
+            }
+            // On a multi-lane ring, a committed driver who could still stop comfortably
+            // short of the line keeps looking, and withdraws when the gap has closed (a
+            // circulating car sped up, or the driver was held up on the way).
+            let stopping_m = v.speed * v.speed / (2.0 * v.driver.comfort_decel_mps2);
+            if v.committed && (!self.multi_lane || to_line < stopping_m + 0.5) {
                 continue;
             }
             if to_line < -0.5 {
@@ -797,25 +934,40 @@ impl World {
                 if j == i || !o.committed {
                     return true;
                 }
+                // Stopped for this very car, standing in its way: it waits for this car to
+                // go (see `obstacle_on_path`).
+                if self.multi_lane
+                    && o.speed < STOPPED_MPS
+                    && self
+                        .obstacle_on_path(j, OTHERS_OBSTACLE_HORIZON_M)
+                        .is_some_and(|l| l.index == i)
+                {
+                    return true;
+                }
+                // Where its car touches one entering here (a route not driving the merge
+                // lane: leaving the ring at this arm, or on a lane the entry crosses): wait
+                // while it is in or near that zone.
+                let zone_clear = route
+                    .entry_conflicts
+                    .iter()
+                    .find(|c| c.route == o.route)
+                    .is_none_or(|c| {
+                        o.s > c.to_s
+                            || (o.s < c.from_s
+                                && (c.from_s - o.s) / o.speed.max(2.0)
+                                    > my_time + v.driver.critical_gap_s)
+                    });
                 // Along its route to the first of the lanes this entry gives way to (the merge
                 // lane, and the lanes an entry into an inner lane crosses) that it drives.
                 let Some(d) = route
                     .yield_lanes()
                     .find_map(|lane| self.to_lane_start(o, lane))
                 else {
-                    // Not coming round to the merge lane; it may still sweep the entry's
-                    // mouth (leaving the ring here): wait while it is in or near that zone.
-                    return route
-                        .entry_conflicts
-                        .iter()
-                        .find(|c| c.route == o.route)
-                        .is_none_or(|c| {
-                            o.s > c.to_s
-                                || (o.s < c.from_s
-                                    && (c.from_s - o.s) / o.speed.max(2.0)
-                                        > my_time + v.driver.critical_gap_s)
-                        });
+                    return zone_clear;
                 };
+                if !zone_clear {
+                    return false;
+                }
                 if d >= self.config.horizon_m {
                     return true;
                 }
@@ -831,12 +983,17 @@ impl World {
                 front_to_merge > 2.0
                     && front_to_merge / o.speed.max(2.0) > my_time + v.driver.critical_gap_s
             });
-            if clear {
-                commit.push(i);
+            match (clear, v.committed) {
+                (true, false) => commit.push(i),
+                (false, true) => withdraw.push(i),
+                _ => {}
             }
         }
         for i in commit {
             self.vehicles[i].committed = true;
+        }
+        for i in withdraw {
+            self.vehicles[i].committed = false;
         }
     }
 
@@ -909,6 +1066,13 @@ impl World {
         {
             a = a.min(v.driver.idm(v.speed, v0, Some((gap, v.speed))));
         }
+        if self.waiting_to_change.get(i) == Some(&true)
+            && let Some((_, start_s)) = self.next_lane_change(i)
+        {
+            // Wait short of the lane change, as at a yield line.
+            let gap = start_s - v.front_s() + v.driver.min_gap_m - 0.3;
+            a = a.min(v.driver.idm(v.speed, v0, Some((gap, v.speed))));
+        }
         if !v.committed {
             let to_line = route.yield_s - v.front_s();
             if to_line > -0.5 {
@@ -918,6 +1082,106 @@ impl World {
             }
         }
         a
+    }
+
+    /// The next lane change on vehicle `i`'s route that its front has not reached, within
+    /// [`LANE_CHANGE_LOOK_M`]: the ring lane it leaves, and where the connection into a
+    /// ring lane of another rank (or out of the ring from an inner lane, across the outer
+    /// one: see [`World::crosses_lanes`]) starts along the route.
+    fn next_lane_change(&self, i: usize) -> Option<(LaneId, f64)> {
+        let v = &self.vehicles[i];
+        let pieces = self.layout.routes[v.route].path.pieces();
+        let front = v.front_s();
+        (v.piece.max(1)..pieces.len().saturating_sub(1))
+            .take_while(|&k| pieces[k].s_start - front <= LANE_CHANGE_LOOK_M)
+            .filter(|&k| pieces[k].s_start > front)
+            .find_map(|k| {
+                let (PieceKey::Lane(from), PieceKey::Connection(_), PieceKey::Lane(to)) =
+                    (pieces[k - 1].key, pieces[k].key, pieces[k + 1].key)
+                else {
+                    return None;
+                };
+                self.crosses_lanes(from, to)
+                    .then_some((from, pieces[k].s_start))
+            })
+    }
+
+    /// Whether going from ring lane `from` on to lane `to` crosses another lane of the
+    /// ring road: a lane change, or leaving the ring from an inner lane.
+    fn crosses_lanes(&self, from: LaneId, to: LaneId) -> bool {
+        let ranks = &self.layout.ring_lane_ranks;
+        match (ranks.get(&from), ranks.get(&to)) {
+            (Some(a), Some(b)) => a != b,
+            (Some(a), None) => *a > 0,
+            _ => false,
+        }
+    }
+
+    /// Whether route `route` changes lanes (or leaves the ring across another lane) where
+    /// it leaves ring lane `lane`.
+    fn changes_lane_after(&self, route: usize, lane: LaneId) -> bool {
+        let pieces = self.layout.routes[route].path.pieces();
+        let Some(k) = pieces.iter().position(|p| p.key == PieceKey::Lane(lane)) else {
+            return false;
+        };
+        match pieces.get(k + 2).map(|p| p.key) {
+            Some(PieceKey::Lane(to)) => self.crosses_lanes(lane, to),
+            _ => false,
+        }
+    }
+
+    /// On a multi-lane ring, the car vehicle `i` waits for before its next lane change
+    /// ([`World::next_lane_change`]), if any: a committed car coming along another lane of
+    /// the ring road that `i` leaves, towards the same junction, and not clearly in front
+    /// of it; it is in the way when it would be beside `i`, or behind it closer than
+    /// [`LANE_CHANGE_GAP_M`] plus [`LANE_CHANGE_HEADWAY_S`] of its speed (positions
+    /// compared as distances to where each leaves the road). A car about to change lanes
+    /// there too that has not started goes first when its front is ahead (the lower index
+    /// on a tie), so two such never wait for each other. A driver that could no longer
+    /// stop short of the change (at the hardest braking) does not wait.
+    pub fn lane_change_wait(&self, i: usize) -> Option<usize> {
+        if !self.multi_lane {
+            return None;
+        }
+        let me = &self.vehicles[i];
+        if !me.committed {
+            return None;
+        }
+        let (from, start_s) = self.next_lane_change(i)?;
+        let to_line = start_s - me.front_s();
+        if me.speed * me.speed / (2.0 * self.config.drivers.max_brake_mps2) > to_line {
+            return None;
+        }
+        let roads = &self.layout.ring_lane_roads;
+        let road = roads.get(&from)?;
+        let q_me = me.s - start_s;
+        let (my_front, my_rear) = (q_me + me.length / 2.0, q_me - me.length / 2.0);
+        self.vehicles
+            .iter()
+            .enumerate()
+            .filter(|&(j, o)| j != i && o.committed)
+            .find_map(|(j, o)| {
+                let route = &self.layout.routes[o.route];
+                let (lane, end) = route
+                    .ring_lanes
+                    .iter()
+                    .filter(|(l, _)| *l != from && roads.get(l) == Some(road))
+                    .find_map(|&(l, _)| Some((l, route.ring_lane_end(l)?)))?;
+                let q = o.s - end;
+                if q < -self.config.horizon_m {
+                    return None;
+                }
+                let (front, rear) = (q + o.length / 2.0, q - o.length / 2.0);
+                if front < 0.0 && self.changes_lane_after(o.route, lane) {
+                    let ahead = front > my_front || (front == my_front && j < i);
+                    return ahead.then_some(j);
+                }
+                if rear > my_front + LANE_CHANGE_GAP_M {
+                    return None; // clearly in front
+                }
+                let behind = my_rear - front;
+                (behind < LANE_CHANGE_GAP_M + o.speed * LANE_CHANGE_HEADWAY_S).then_some(j)
+            })
     }
 
     /// On a multi-lane ring, how far vehicle `i` can go before its footprint would touch a
@@ -982,9 +1246,29 @@ impl World {
         if !arrive {
             return;
         }
-        let entries: Vec<usize> = self.layout.usable_entries().collect();
+        // Only on routes where the longest car fits before its yield line: on a shorter
+        // approach (cut at a junction next to the ring) a car would appear already over
+        // its line, on top of the cars entering there.
+        let room = self
+            .config
+            .vehicle_length_m
+            .at(0.0)
+            .max(self.config.vehicle_length_m.at(1.0));
+        let layout = Arc::clone(&self.layout);
+        let roomy = |r: &usize| layout.routes[*r].yield_s >= room;
+        let entries: Vec<usize> = layout
+            .usable_entries()
+            .filter(|&e| layout.routes_by_entry[e].iter().any(roomy))
+            .collect();
+        if entries.is_empty() {
+            return;
+        }
         let entry = entries[((entry_draw * entries.len() as f64) as usize).min(entries.len() - 1)];
-        let routes = &self.layout.routes_by_entry[entry];
+        let routes: Vec<usize> = layout.routes_by_entry[entry]
+            .iter()
+            .copied()
+            .filter(roomy)
+            .collect();
         let route_index =
             routes[((route_draw * routes.len() as f64) as usize).min(routes.len() - 1)];
         let length = self.config.vehicle_length_m.at(length_draw);
@@ -1001,7 +1285,29 @@ impl World {
             })
             .map(|o| (o.s - o.length / 2.0 - length, o.speed))
             .min_by(|a, b| a.0.total_cmp(&b.0));
-        if ahead.is_some_and(|(gap, _)| gap < self.config.spawn_clearance_m) {
+        // Nor on top of a car of another route passing by.
+        let (p, h) = layout.routes[route_index].path.pose_at(s);
+        let footprint = OrientedBox::new(p, h, length, width);
+        let touching = self
+            .vehicles
+            .iter()
+            .any(|o| o.footprint().overlaps(&footprint));
+        // On a multi-lane ring, nor where a car of another route is about to drive (where
+        // an exit runs over the start of another arm's approach): it would stop there for
+        // the new car, which waits behind the queue that car holds up.
+        let in_the_way = self.multi_lane
+            && self.vehicles.iter().any(|o| {
+                let path = &layout.routes[o.route].path;
+                let front = o.s + o.length / 2.0;
+                let to = (front + SPAWN_LOOK_M).min(path.length());
+                let steps = ((to - o.s) / 1.0).ceil().max(0.0) as usize;
+                (1..=steps).any(|k| {
+                    let (q, g) = path.pose_at((o.s + k as f64).min(to));
+                    OrientedBox::new(q, g, o.length, o.width).overlaps(&footprint)
+                })
+            });
+        let touching = touching || in_the_way;
+        if touching || ahead.is_some_and(|(gap, _)| gap < self.config.spawn_clearance_m) {
             self.stats.spawns_blocked += 1;
             return;
         }
@@ -1049,14 +1355,22 @@ impl World {
         hit
     }
 
-    /// Pairs of other vehicles (not the ego) whose footprints overlap: a diagnostic of the
-    /// traffic model, which should keep it near zero.
+    /// Pairs of other vehicles (not the ego) whose footprints overlap, by id (lower
+    /// first). Between steps, only pairs touching the ego as well are left (see
+    /// [`World::step_ego`]), already counted as collisions.
     pub fn overlapping_others(&self) -> Vec<(u32, u32)> {
+        let boxes: Vec<(u32, OrientedBox)> = self
+            .vehicles
+            .iter()
+            .filter(|v| !v.is_ego())
+            .map(|v| (v.id, v.footprint()))
+            .collect();
         let mut out = Vec::new();
-        for (i, a) in self.vehicles.iter().enumerate() {
-            for b in &self.vehicles[i + 1..] {
-                if !a.is_ego() && !b.is_ego() && a.footprint().overlaps(&b.footprint()) {
-                    out.push((a.id, b.id));
+        for (k, (a, fa)) in boxes.iter().enumerate() {
+            for (b, fb) in &boxes[k + 1..] {
+                let reach = fa.bounding_radius() + fb.bounding_radius();
+                if fa.centre.distance(fb.centre) <= reach && fa.overlaps(fb) {
+                    out.push((*a.min(b), *a.max(b)));
                 }
             }
         }

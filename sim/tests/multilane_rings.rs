@@ -1,10 +1,20 @@
 //! The roundabout-insertion world on the multi-lane rings of the Andorra extract (shared
 //! data, skipped when absent): episodes with rule baselines, and long runs of the traffic
 //! alone, must run without panics, without vehicles stuck for no reason, with every vehicle
-//! leaving the ring by its route's exit, and with every overlap of the ego counted as a
-//! crash. The world counts no collision between its own vehicles; their overlaps are
-//! printed and held under a ceiling (cars side by side where one changes lanes, and lanes
-//! of the imported geometry that touch near junctions, still make some).
+//! leaving the ring by its route's exit, and with every overlap counted: the ego's as the
+//! episode's crash, two other vehicles' as a collision of the world
+//! ([`sim::world::WorldStats::collisions`], after which both are gone).
+//!
+//! The default budget is small (a few episodes per ring). `MULTILANE_EPISODES=N` runs
+//! instead N episodes per baseline (the gap rules at 25, 20, 15 and 10 m, always
+//! permitted, random) on one two-lane ring ([`FULL_SIZE_RING`]), with the same checks, and
+//! prints each baseline's reached / crashed / timed-out shares with 95 % intervals:
+//! `MULTILANE_EPISODES=10000 cargo test -p sim --release --test multilane_rings -- --nocapture`.
+//! Run so on ring 7 (60,000 episodes in high traffic, ego aggressiveness 0.5, then 10 hours
+//! of traffic alone), the world counted 7,735 collisions in the episodes (warm-ups
+//! included) and 127 in the traffic run, with no overlap uncounted, no vehicle stuck and no
+//! wrong exit; the rules crashed in 3.5 % (25 m) to 6.8 % (10 m) of the episodes, always
+//! permitted in 8.2 %, random in 3.5 % (timing out in 95 %).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::print_stdout)]
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -19,33 +29,44 @@ use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion, Task};
 use sim::world::{EgoConfig, TrafficConfig, TrafficLevel, World};
 use sim::{Env, Outcome};
 
-/// Episodes per ring (split over the baselines below).
-const EPISODES_PER_RING: u64 = 200;
+/// Episodes per ring (split over the two baselines below) in the default run.
+const EPISODES_PER_RING: u64 = 40;
 /// Seconds of traffic alone per ring.
-const TRAFFIC_RUN_S: f64 = 600.0;
+const TRAFFIC_RUN_S: f64 = 300.0;
 /// A vehicle standing this long with nothing to wait for is stuck, s.
 const STUCK_LIMIT_S: f64 = 60.0;
-/// Ceilings on pairs of world vehicles overlapping: per episode, and per ring's run of
-/// traffic alone.
-const MAX_OVERLAPS_PER_EPISODE: f64 = 0.4;
-const MAX_OVERLAPS_PER_TRAFFIC_RUN: f64 = 4.5;
+/// The ring run at full size (`MULTILANE_RING` picks another): a two-lane ring of 14 m
+/// radius with four entries and four exits, 31 routes, lane changes on the ring and exits
+/// from the inner lane.
+const FULL_SIZE_RING: u32 = 7;
+/// Seconds of traffic alone at full size.
+const FULL_SIZE_TRAFFIC_S: f64 = 36_000.0;
 
 fn shared_data() -> Option<PathBuf> {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
     dir.is_dir().then_some(dir)
 }
 
-/// Problems found on one ring.
+/// What happened on one ring.
 #[derive(Debug, Default, Clone, Copy)]
 struct Figures {
     episodes: u64,
+    reached: u64,
     crashes: u64,
-    /// Pairs of world vehicles overlapping (the world counts no collision between them),
-    /// counted once per pair.
+    time_overs: u64,
+    off_roads: u64,
+    /// Collisions between other vehicles counted by the world.
+    collisions: u64,
+    /// Pairs of other vehicles seen overlapping that the world did not count.
     uncounted_overlaps: u64,
+    /// Other vehicles gone before the end of their route and not counted as crashed.
+    vanished: u64,
     /// The ego overlapping a vehicle without the episode ending in a crash.
     uncounted_ego_overlaps: u64,
     stuck: u64,
+    /// Vehicles that stood still more than [`STUCK_LIMIT_S`] at a stretch for whatever
+    /// reason (waiting at a yield line, or in a queue, included).
+    stood_long: u64,
     wrong_exits: u64,
     left_ring: u64,
 }
@@ -53,30 +74,105 @@ struct Figures {
 impl std::ops::AddAssign for Figures {
     fn add_assign(&mut self, o: Self) {
         self.episodes += o.episodes;
+        self.reached += o.reached;
         self.crashes += o.crashes;
+        self.time_overs += o.time_overs;
+        self.off_roads += o.off_roads;
+        self.collisions += o.collisions;
         self.uncounted_overlaps += o.uncounted_overlaps;
+        self.vanished += o.vanished;
         self.uncounted_ego_overlaps += o.uncounted_ego_overlaps;
         self.stuck += o.stuck;
+        self.stood_long += o.stood_long;
         self.wrong_exits += o.wrong_exits;
         self.left_ring += o.left_ring;
     }
 }
 
-/// Watches a world between steps: stopped vehicles, overlaps and where vehicles leave the
-/// ring.
+/// Watches a world between steps: stopped vehicles, overlaps, vehicles gone and where
+/// vehicles leave the ring.
 #[derive(Default)]
 struct Watch {
     /// Per vehicle id: when it stopped with nothing to wait for.
     stopped_since: BTreeMap<u32, f64>,
     stuck: BTreeSet<u32>,
+    /// Per vehicle id: when it stopped, whatever the reason.
+    standing_since: BTreeMap<u32, f64>,
+    stood_long: BTreeSet<u32>,
+    /// Pairs of other vehicles overlapping at the last look.
     overlapping: BTreeSet<(u32, u32)>,
+    /// Per vehicle id at the last look: whether it was about to reach the end of its
+    /// route (and may leave by the next look).
+    near_end: BTreeMap<u32, bool>,
+    /// The world's counters at the last look.
+    collisions: u64,
+    crashed: u64,
+    uncounted_overlaps: u64,
+    vanished: u64,
     /// Vehicles whose centre passed their exit point, checked once.
     exited: BTreeMap<u32, bool>,
 }
 
 impl Watch {
+    fn new(world: &World) -> Self {
+        let mut watch = Watch {
+            collisions: world.stats().collisions,
+            crashed: world.stats().crashed,
+            ..Watch::default()
+        };
+        watch.remember(world);
+        watch
+    }
+
+    fn remember(&mut self, world: &World) {
+        let dt = world.config().step_s;
+        self.near_end = world
+            .vehicles()
+            .iter()
+            .filter(|v| !v.is_ego())
+            .map(|v| {
+                let end = world.route(v).path.length();
+                let front = v.s + v.length / 2.0;
+                (v.id, front + 2.0 * dt * (v.speed + 10.0 * dt) + 0.1 >= end)
+            })
+            .collect();
+    }
+
     fn look(&mut self, map: &Map, world: &World) {
         let now = world.time_s();
+        let stats = world.stats();
+        // Overlaps, checked here on the footprints: the world takes both vehicles of a
+        // collision out, so only pairs with one touching the ego may be left, and each
+        // new pair must have been counted.
+        let others: Vec<_> = world.vehicles().iter().filter(|v| !v.is_ego()).collect();
+        let ego = world.ego_index().map(|e| world.vehicles()[e].footprint());
+        let touches_ego =
+            |v: &sim::world::Vehicle| ego.as_ref().is_some_and(|e| e.overlaps(&v.footprint()));
+        let mut overlapping = BTreeSet::new();
+        for (k, a) in others.iter().enumerate() {
+            for b in &others[k + 1..] {
+                if a.footprint().overlaps(&b.footprint()) {
+                    if !touches_ego(a) && !touches_ego(b) {
+                        self.uncounted_overlaps += 1;
+                    }
+                    overlapping.insert((a.id.min(b.id), a.id.max(b.id)));
+                }
+            }
+        }
+        let new_pairs = overlapping.difference(&self.overlapping).count() as u64;
+        self.uncounted_overlaps += new_pairs.saturating_sub(stats.collisions - self.collisions);
+        self.overlapping = overlapping;
+        // Vehicles gone since the last look short of the end of their route: crashed.
+        let present: BTreeSet<u32> = others.iter().map(|v| v.id).collect();
+        let gone_early = self
+            .near_end
+            .iter()
+            .filter(|(id, near)| !present.contains(id) && !**near)
+            .count() as u64;
+        self.vanished += gone_early.saturating_sub(stats.crashed - self.crashed);
+        self.collisions = stats.collisions;
+        self.crashed = stats.crashed;
+        self.remember(world);
         for (i, v) in world.vehicles().iter().enumerate() {
             if v.is_ego() {
                 continue;
@@ -86,7 +182,16 @@ impl Watch {
             let has_reason = waiting_at_line
                 || world.leader(i).is_some_and(|l| l.gap_m < 15.0)
                 || world.merging_leader(i).is_some()
-                || world.obstacle_on_path(i, 12.0).is_some();
+                || world.obstacle_on_path(i, 12.0).is_some()
+                || world.lane_change_wait(i).is_some();
+            if v.speed < 0.1 {
+                let since = *self.standing_since.entry(v.id).or_insert(now);
+                if now - since > STUCK_LIMIT_S {
+                    self.stood_long.insert(v.id);
+                }
+            } else {
+                self.standing_since.remove(&v.id);
+            }
             if v.speed < 0.1 && !has_reason {
                 let since = *self.stopped_since.entry(v.id).or_insert(now);
                 if now - since > STUCK_LIMIT_S {
@@ -107,15 +212,16 @@ impl Watch {
                 self.exited.insert(v.id, on_it);
             }
         }
-        for (a, b) in world.overlapping_others() {
-            self.overlapping.insert((a, b));
-        }
     }
 
-    fn figures(&self) -> Figures {
+    /// The figures since the world was made (collisions in its warm-up included).
+    fn figures(&self, world: &World) -> Figures {
         Figures {
+            collisions: world.stats().collisions,
+            uncounted_overlaps: self.uncounted_overlaps,
+            vanished: self.vanished,
             stuck: self.stuck.len() as u64,
-            uncounted_overlaps: self.overlapping.len() as u64,
+            stood_long: self.stood_long.len() as u64,
             wrong_exits: self.exited.values().filter(|ok| !**ok).count() as u64,
             left_ring: self.exited.len() as u64,
             ..Figures::default()
@@ -123,32 +229,38 @@ impl Watch {
     }
 }
 
-fn run_episodes(map: &Arc<Map>, id: RoundaboutId) -> Option<Figures> {
+fn insertion_setup(map: &Arc<Map>, id: RoundaboutId) -> Option<Arc<InsertionSetup>> {
     let config = InsertionConfig {
         aggressiveness: Some(0.5),
         roundabout: Some(id.0),
         ..InsertionConfig::default()
     };
-    let setup = match InsertionSetup::new(Arc::clone(map), config) {
-        Ok(s) => s,
+    match InsertionSetup::new(Arc::clone(map), config) {
+        Ok(s) => Some(s),
         Err(e) => {
             println!("ring {id}: no insertion setup: {e}");
-            return None;
+            None
         }
-    };
-    let baselines = [
-        Baseline::Rule { threshold_m: 15.0 },
-        Baseline::AlwaysPermitted,
-    ];
+    }
+}
+
+/// `episodes` episodes (seeds 1000, 1001, ...) in high traffic, the baselines taking
+/// turns.
+fn run_episodes(
+    map: &Arc<Map>,
+    setup: &Arc<InsertionSetup>,
+    baselines: &[Baseline],
+    episodes: u64,
+) -> Figures {
     let mut figures = Figures::default();
-    let mut env = RoundaboutInsertion::new(setup);
+    let mut env = RoundaboutInsertion::new(Arc::clone(setup));
     env.set_traffic(TrafficLevel::High);
     env.set_rendering(false);
-    for episode in 0..EPISODES_PER_RING {
-        let baseline = baselines[(episode % 2) as usize];
+    for episode in 0..episodes {
+        let baseline = baselines[(episode % baselines.len() as u64) as usize];
         let seed = 1000 + episode;
         let mut observation = env.reset(seed);
-        let mut watch = Watch::default();
+        let mut watch = Watch::new(env.world().expect("a world after reset"));
         let mut step = 0;
         let outcome = loop {
             let state = env.state();
@@ -180,18 +292,19 @@ fn run_episodes(map: &Arc<Map>, id: RoundaboutId) -> Option<Figures> {
                 break o;
             }
         };
+        figures += watch.figures(env.world().expect("a world"));
         figures.episodes += 1;
-        figures.crashes += u64::from(outcome == Outcome::Crashed);
-        let f = watch.figures();
-        figures.uncounted_overlaps += f.uncounted_overlaps;
-        figures.stuck += f.stuck;
-        figures.wrong_exits += f.wrong_exits;
-        figures.left_ring += f.left_ring;
+        match outcome {
+            Outcome::Reached => figures.reached += 1,
+            Outcome::Crashed => figures.crashes += 1,
+            Outcome::TimeOver => figures.time_overs += 1,
+            Outcome::OffRoad => figures.off_roads += 1,
+        }
     }
-    Some(figures)
+    figures
 }
 
-fn run_traffic(map: &Map, id: RoundaboutId) -> Option<Figures> {
+fn run_traffic(map: &Map, id: RoundaboutId, seconds: f64) -> Option<Figures> {
     let layout = RoundaboutLayout::new(map, id, &InsertionConfig::default().layout).ok()?;
     let traffic = TrafficConfig {
         level: TrafficLevel::High,
@@ -203,27 +316,75 @@ fn run_traffic(map: &Map, id: RoundaboutId) -> Option<Figures> {
         EgoConfig::default(),
         7 + id.0 as u64,
     );
-    let mut watch = Watch::default();
-    let steps = (TRAFFIC_RUN_S / traffic.step_s) as usize;
+    let mut watch = Watch::new(&world);
+    let steps = (seconds / traffic.step_s) as usize;
     for _ in 0..steps {
         world.step(0.0);
         watch.look(map, &world);
     }
-    Some(watch.figures())
+    Some(watch.figures(&world))
+}
+
+/// Every overlap counted, nobody stuck, every exit the chosen one.
+fn assert_clean(f: &Figures) {
+    assert_eq!(f.uncounted_overlaps, 0, "overlaps not counted: {f:?}");
+    assert_eq!(f.vanished, 0, "vehicles gone uncounted: {f:?}");
+    assert_eq!(
+        f.uncounted_ego_overlaps, 0,
+        "ego overlaps not counted: {f:?}"
+    );
+    assert_eq!(f.stuck, 0, "stuck vehicles: {f:?}");
+    assert_eq!(f.wrong_exits, 0, "wrong exits: {f:?}");
+}
+
+/// The 95 % Wilson interval of `k` successes in `n` trials, in percent.
+fn wilson(k: u64, n: u64) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 100.0);
+    }
+    let (k, n, z) = (k as f64, n as f64, 1.96f64);
+    let p = k / n;
+    let centre = (p + z * z / (2.0 * n)) / (1.0 + z * z / n);
+    let half = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / (1.0 + z * z / n);
+    (
+        100.0 * (centre - half).max(0.0),
+        100.0 * (centre + half).min(1.0),
+    )
+}
+
+fn share(k: u64, n: u64) -> String {
+    let (lo, hi) = wilson(k, n);
+    format!(
+        "{:.1} % [{lo:.1}, {hi:.1}]",
+        100.0 * k as f64 / n.max(1) as f64
+    )
+}
+
+fn andorra() -> Option<Arc<Map>> {
+    let Some(data) = shared_data() else {
+        println!("skipped: no shared data directory");
+        return None;
+    };
+    let path = data.join("osm/roundabouts/andorra.osm.pbf");
+    if !path.is_file() {
+        println!("skipped: {path:?} is missing");
+        return None;
+    }
+    Some(Arc::new(
+        maps::import_file(&path, &Default::default()).unwrap(),
+    ))
 }
 
 #[test]
 fn insertion_runs_cleanly_on_multi_lane_rings() {
-    let Some(data) = shared_data() else {
-        println!("skipped: insertion_runs_cleanly_on_multi_lane_rings: no shared data directory");
-        return;
-    };
-    let path = data.join("osm/roundabouts/andorra.osm.pbf");
-    if !path.is_file() {
-        println!("skipped: insertion_runs_cleanly_on_multi_lane_rings: {path:?} is missing");
+    let Some(map) = andorra() else { return };
+    if let Some(n) = std::env::var("MULTILANE_EPISODES")
+        .ok()
+        .and_then(|n| n.parse::<u64>().ok())
+    {
+        full_size(&map, n);
         return;
     }
-    let map = Arc::new(maps::import_file(&path, &Default::default()).unwrap());
     let rings: Vec<RoundaboutId> = map
         .roundabouts
         .values()
@@ -231,14 +392,18 @@ fn insertion_runs_cleanly_on_multi_lane_rings() {
         .map(|r| r.id)
         .collect();
     assert!(!rings.is_empty(), "the extract has multi-lane rings");
+    let baselines = [
+        Baseline::Rule { threshold_m: 15.0 },
+        Baseline::AlwaysPermitted,
+    ];
     let (mut episodes, mut traffic) = (Figures::default(), Figures::default());
     let mut tested = 0;
     for &id in &rings {
-        let Some(e) = run_episodes(&map, id) else {
+        let Some(setup) = insertion_setup(&map, id) else {
             continue;
         };
-        let t = run_traffic(&map, id).expect("a layout where the task has a setup");
-        assert_eq!(e.episodes, EPISODES_PER_RING);
+        let e = run_episodes(&map, &setup, &baselines, EPISODES_PER_RING);
+        let t = run_traffic(&map, id, TRAFFIC_RUN_S).expect("a layout where the task has a setup");
         println!("ring {id}: episodes {e:?}; traffic alone {t:?}");
         tested += 1;
         episodes += e;
@@ -250,20 +415,57 @@ fn insertion_runs_cleanly_on_multi_lane_rings() {
     );
     assert!(tested > 0, "no multi-lane ring could be set up");
     for f in [episodes, traffic] {
-        assert_eq!(
-            f.uncounted_ego_overlaps, 0,
-            "ego overlaps not counted: {f:?}"
-        );
-        assert_eq!(f.stuck, 0, "stuck vehicles: {f:?}");
-        assert_eq!(f.wrong_exits, 0, "wrong exits: {f:?}");
+        assert_clean(&f);
         assert!(f.left_ring > 0, "no vehicle left a ring: {f:?}");
     }
-    assert!(
-        episodes.uncounted_overlaps as f64 <= MAX_OVERLAPS_PER_EPISODE * episodes.episodes as f64,
-        "world vehicles overlapping: {episodes:?}"
+}
+
+/// `n` episodes per baseline on [`FULL_SIZE_RING`], and a long run of its traffic alone.
+fn full_size(map: &Arc<Map>, n: u64) {
+    let id = RoundaboutId(
+        std::env::var("MULTILANE_RING")
+            .ok()
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(FULL_SIZE_RING),
     );
-    assert!(
-        traffic.uncounted_overlaps as f64 <= MAX_OVERLAPS_PER_TRAFFIC_RUN * tested as f64,
-        "world vehicles overlapping: {traffic:?}"
+    let ring = &map.roundabouts[&id];
+    assert_eq!(ring.lanes_across, 2, "a two-lane ring");
+    println!(
+        "ring {id}: {} lanes across, radius {:.1} m, {} entries, {} exits",
+        ring.lanes_across,
+        ring.radius_m,
+        ring.entries.len(),
+        ring.exits.len()
     );
+    let setup = insertion_setup(map, id).expect("a setup on the full-size ring");
+    let baselines = [
+        Baseline::Rule { threshold_m: 25.0 },
+        Baseline::Rule { threshold_m: 20.0 },
+        Baseline::Rule { threshold_m: 15.0 },
+        Baseline::Rule { threshold_m: 10.0 },
+        Baseline::AlwaysPermitted,
+        Baseline::Random,
+    ];
+    let mut all = Figures::default();
+    println!("| baseline | episodes | reached | crashed | timed out | off-road |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: |");
+    for baseline in baselines {
+        let f = run_episodes(map, &setup, &[baseline], n);
+        println!(
+            "| {} | {} | {} | {} | {} | {} |",
+            baseline.name(),
+            f.episodes,
+            share(f.reached, f.episodes),
+            share(f.crashes, f.episodes),
+            share(f.time_overs, f.episodes),
+            share(f.off_roads, f.episodes),
+        );
+        all += f;
+    }
+    let traffic = run_traffic(map, id, FULL_SIZE_TRAFFIC_S).expect("a layout");
+    println!("ring {id}: episodes {all:?}; traffic alone {FULL_SIZE_TRAFFIC_S} s {traffic:?}");
+    for f in [all, traffic] {
+        assert_clean(&f);
+        assert!(f.left_ring > 0, "no vehicle left the ring: {f:?}");
+    }
 }

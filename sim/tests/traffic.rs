@@ -66,8 +66,8 @@ fn idm_never_drives_a_follower_into_its_leader() {
 }
 
 /// Over four simulated minutes of high traffic: vehicles keep entering the ring, going
-/// round, and leaving at their exits; nobody stalls in the ring, and others' footprints
-/// rarely overlap (under 2.5 % of steps).
+/// round, and leaving at their exits; nobody stalls in the ring, others rarely collide (a
+/// collision every 40 s at most), and only those that collided leave before their exit.
 #[test]
 fn circulating_vehicles_go_round_and_leave_at_exits() {
     let layout = montlake_layout();
@@ -75,7 +75,6 @@ fn circulating_vehicles_go_round_and_leave_at_exits() {
     let mut world = World::new(Arc::clone(&layout), config, EgoConfig::default(), 7);
     // id -> (route, last s, time entered the ring, seconds stopped in the ring so far)
     let mut seen: BTreeMap<u32, (usize, f64, Option<f64>, f64)> = BTreeMap::new();
-    let mut overlapping_steps = 0;
     let steps = 2400;
     for _ in 0..steps {
         world.step(0.0);
@@ -89,9 +88,10 @@ fn circulating_vehicles_go_round_and_leave_at_exits() {
                 e.3 += 0.1;
             }
         }
-        if !world.overlapping_others().is_empty() {
-            overlapping_steps += 1;
-        }
+        assert!(
+            world.overlapping_others().is_empty(),
+            "an overlap left in the world"
+        );
     }
     let alive: Vec<u32> = world.vehicles().iter().map(|v| v.id).collect();
     let gone: Vec<_> = seen.iter().filter(|(id, _)| !alive.contains(id)).collect();
@@ -100,18 +100,24 @@ fn circulating_vehicles_go_round_and_leave_at_exits() {
         "only {} vehicles left the roundabout in 4 minutes",
         gone.len()
     );
+    let stats = world.stats();
+    let mut left_early = 0;
     for (id, (route, last_s, entered, _)) in &gone {
         let r = &layout.routes[*route];
+        if *last_s <= r.exit_s {
+            left_early += 1;
+            continue;
+        }
         assert!(
             entered.is_some(),
             "vehicle {id} left without entering the ring"
         );
-        assert!(
-            *last_s > r.exit_s,
-            "vehicle {id} vanished at {last_s} before its exit {}",
-            r.exit_s
-        );
     }
+    assert!(
+        left_early <= stats.crashed,
+        "{left_early} vehicles gone before their exit, {} crashed",
+        stats.crashed
+    );
     let most_stopped = seen.values().map(|e| e.3).fold(0.0, f64::max);
     assert!(
         most_stopped < 5.0,
@@ -119,11 +125,13 @@ fn circulating_vehicles_go_round_and_leave_at_exits() {
     );
     // Mini-roundabout geometry (arms every 8 m round a 6 m ring) lets bodies touch now
     // and then where paths cross; it must stay rare.
+    eprintln!("{stats:?}");
     assert!(
-        overlapping_steps * 40 < steps,
-        "others overlapped in {overlapping_steps} of {steps} steps"
+        stats.collisions * 400 <= steps as u64,
+        "{} collisions in {steps} steps",
+        stats.collisions
     );
-    assert_eq!(world.stats().despawned as usize, gone.len());
+    assert_eq!((stats.despawned + stats.crashed) as usize, gone.len());
 }
 
 /// A driver waiting at its yield line does not go while a circulating car is about to
