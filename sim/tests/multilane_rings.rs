@@ -1,5 +1,5 @@
-//! The roundabout-insertion world on the multi-lane rings of the Andorra extract (shared
-//! data, skipped when absent): episodes with rule baselines, and long runs of the traffic
+//! The roundabout-insertion world on the multi-lane rings and the mini-roundabouts of the
+//! Andorra extract (shared data, skipped when absent): episodes with rule baselines, and long runs of the traffic
 //! alone, must run without panics, without vehicles stuck for no reason, with every vehicle
 //! leaving the ring by its route's exit, and with every overlap counted: the ego's as the
 //! episode's crash, two other vehicles' as a collision of the world
@@ -7,7 +7,8 @@
 //!
 //! The default budget is small (a few episodes per ring). `MULTILANE_EPISODES=N` runs
 //! instead N episodes per baseline (the gap rules at 25, 20, 15 and 10 m, always
-//! permitted, random) on one two-lane ring ([`FULL_SIZE_RING`]), with the same checks, and
+//! permitted, random) on one two-lane ring ([`FULL_SIZE_RING`]; `MULTILANE_RING=ID` picks
+//! another ring or a mini-roundabout), with the same checks, and
 //! prints each baseline's reached / crashed / timed-out shares with 95 % intervals:
 //! `MULTILANE_EPISODES=10000 cargo test -p sim --release --test multilane_rings -- --nocapture`.
 //! Run so on ring 7 (60,000 episodes in high traffic, ego aggressiveness 0.5, then 10 hours
@@ -22,7 +23,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use maps::geometry::project_onto_polyline;
-use maps::{Map, RoundaboutId};
+use maps::{Map, RoundaboutId, RoundaboutKind};
 use sim::baselines::{Baseline, PolicyInput};
 use sim::roundabout::RoundaboutLayout;
 use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion, Task};
@@ -388,10 +389,15 @@ fn insertion_runs_cleanly_on_multi_lane_rings() {
     let rings: Vec<RoundaboutId> = map
         .roundabouts
         .values()
-        .filter(|r| r.lanes_across >= 2)
+        .filter(|r| r.lanes_across >= 2 || r.kind == RoundaboutKind::MiniRoundabout)
         .map(|r| r.id)
         .collect();
-    assert!(!rings.is_empty(), "the extract has multi-lane rings");
+    assert!(
+        rings
+            .iter()
+            .any(|id| map.roundabouts[id].kind == RoundaboutKind::MiniRoundabout),
+        "the extract has mini-roundabouts"
+    );
     let baselines = [
         Baseline::Rule { threshold_m: 15.0 },
         Baseline::AlwaysPermitted,
@@ -410,7 +416,7 @@ fn insertion_runs_cleanly_on_multi_lane_rings() {
         traffic += t;
     }
     println!(
-        "{tested} of {} multi-lane rings tested; episodes {episodes:?}; traffic alone {traffic:?}",
+        "{tested} of {} multi-lane rings and mini-roundabouts tested; episodes {episodes:?}; traffic alone {traffic:?}",
         rings.len()
     );
     assert!(tested > 0, "no multi-lane ring could be set up");
@@ -429,9 +435,13 @@ fn full_size(map: &Arc<Map>, n: u64) {
             .unwrap_or(FULL_SIZE_RING),
     );
     let ring = &map.roundabouts[&id];
-    assert_eq!(ring.lanes_across, 2, "a two-lane ring");
+    assert!(
+        ring.lanes_across == 2 || ring.kind == RoundaboutKind::MiniRoundabout,
+        "a two-lane ring or a mini-roundabout"
+    );
     println!(
-        "ring {id}: {} lanes across, radius {:.1} m, {} entries, {} exits",
+        "ring {id} ({:?}): {} lanes across, radius {:.1} m, {} entries, {} exits",
+        ring.kind,
         ring.lanes_across,
         ring.radius_m,
         ring.entries.len(),
