@@ -83,6 +83,20 @@ fn recording_is_readable_by_rerun_and_shows_the_map() {
     {
         assert!(text.contains("world/map/roundabouts"), "{text}");
     }
+    // Every ring's lanes and label, each under its own entity.
+    for r in summary["roundabouts"].as_array().into_iter().flatten() {
+        if r["circulating_lanes"].as_u64().unwrap_or(0) == 0 {
+            continue;
+        }
+        let id = r["id"].as_u64().unwrap();
+        for part in ["ring_lanes", "label"] {
+            let entity = format!("world/map/roundabouts/{id}/{part}");
+            assert!(
+                text.contains(&entity),
+                "`{entity}` missing from rerun rrd print:\n{text}"
+            );
+        }
+    }
     if summary["stop_lines"]["total"].as_u64().unwrap_or(0) > 0 {
         assert!(text.contains("world/map/stop_lines"), "{text}");
     }

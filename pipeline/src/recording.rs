@@ -8,12 +8,17 @@
 //!
 //! | entity | what |
 //! | --- | --- |
-//! | `world/map/lanes` | lane centre lines, coloured by road class |
+//! | `world/map/lanes` | centre lines of the lanes off the rings, coloured by road class |
 //! | `world/map/lane_boundaries` | left and right lane edges |
 //! | `world/map/junctions` | junction area outlines |
-//! | `world/map/roundabouts` | the rings of circulating lanes, labelled |
+//! | `world/map/roundabouts/<id>/ring_lanes` | centre lines of every lane of a ring, coloured by its kind |
+//! | `world/map/roundabouts/<id>/label` | a point at the ring's centre labelled with its kind, lanes across and priority |
 //! | `world/map/stop_lines` | stop and give-way lines, red |
 //! | `world/map/markings` | centre lines (yellow), lane dividers and edges (white) |
+//!
+//! A ring's colour tells its kind: a roundabout magenta, a circular junction teal, a
+//! mini-roundabout violet. Its label reads like a line of `pipeline map info`, e.g.
+//! `#3 roundabout, 2 lanes wide, ring first (assumed)`.
 //!
 //! Inside `pipeline run` every stage logs into the run's one recording, each under its own
 //! entity path: commands log through [`Stream`] and open their recording with
@@ -31,9 +36,12 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use maps::geometry::Point;
-use maps::{Map, MarkingKind, StopKind};
+use maps::{
+    LaneId, Map, MarkingKind, PrioritySource, Roundabout, RoundaboutKind, RoundaboutPriority,
+    StopKind,
+};
 use rerun::{
-    AsComponents, Color, LineStrips3D, Radius, RecordingStream, RecordingStreamBuilder,
+    AsComponents, Color, LineStrips3D, Points3D, Radius, RecordingStream, RecordingStreamBuilder,
     RecordingStreamResult, TimelineName,
 };
 
@@ -226,6 +234,8 @@ const Z_JUNCTIONS: f32 = 0.02;
 const Z_MARKINGS: f32 = 0.03;
 const Z_ROUNDABOUTS: f32 = 0.04;
 const Z_STOP_LINES: f32 = 0.05;
+/// Height of a roundabout's label point, above the ring so it is not hidden by it.
+const Z_ROUNDABOUT_LABELS: f32 = 0.5;
 
 fn strip(points: &[Point], z: f32) -> Vec<[f32; 3]> {
     points.iter().map(|p| [p.x as f32, p.y as f32, z]).collect()
@@ -256,13 +266,59 @@ fn class_color(highway: &str) -> Color {
     }
 }
 
+/// Colour of a ring's lanes and label: one per kind.
+fn kind_color(kind: RoundaboutKind) -> Color {
+    match kind {
+        RoundaboutKind::Roundabout => Color::from_rgb(220, 60, 220),
+        RoundaboutKind::Circular => Color::from_rgb(40, 200, 180),
+        RoundaboutKind::MiniRoundabout => Color::from_rgb(160, 110, 255),
+    }
+}
+
+/// A roundabout's label: id, kind, lanes across and who has priority (and how we know).
+fn roundabout_label(r: &Roundabout) -> String {
+    let kind = match r.kind {
+        RoundaboutKind::Roundabout => "roundabout",
+        RoundaboutKind::Circular => "circular junction",
+        RoundaboutKind::MiniRoundabout => "mini-roundabout",
+    };
+    let lanes = match r.lanes_across {
+        1 => "1 lane".to_owned(),
+        n => format!("{n} lanes"),
+    };
+    let first = match r.priority {
+        RoundaboutPriority::Circulating => "ring first",
+        RoundaboutPriority::Entering => "entries first",
+    };
+    let how = match r.priority_source {
+        PrioritySource::Tags => "tagged",
+        PrioritySource::Assumed => "assumed",
+    };
+    let guessed = if r.source == maps::RoundaboutSource::Guessed {
+        ", guessed"
+    } else {
+        ""
+    };
+    format!("#{} {kind}, {lanes} wide, {first} ({how}){guessed}", r.id)
+}
+
 /// Logs a map under `world/map/...`, static.
 pub fn log_map(rec: &Stream, map: &Map) -> Result<()> {
     let err = |what: &str| format!("rerun: cannot log {what}");
     rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())
         .with_context(|| err("world"))?;
 
-    let lanes: Vec<_> = map.lanes.values().filter(|l| l.centre.len() >= 2).collect();
+    // The rings' lanes are drawn under `world/map/roundabouts/<id>`, not with the others.
+    let on_rings: std::collections::BTreeSet<LaneId> = map
+        .roundabouts
+        .values()
+        .flat_map(|r| r.ring_lanes.iter().chain(&r.circulating_lanes).copied())
+        .collect();
+    let lanes: Vec<_> = map
+        .lanes
+        .values()
+        .filter(|l| l.centre.len() >= 2 && !on_rings.contains(&l.id))
+        .collect();
     let colors: Vec<Color> = lanes
         .iter()
         .map(|l| {
@@ -301,40 +357,40 @@ pub fn log_map(rec: &Stream, map: &Map) -> Result<()> {
     )
     .with_context(|| err("junctions"))?;
 
-    let mut rings = Vec::new();
-    let mut labels = Vec::new();
     for r in map.roundabouts.values() {
-        let mut ring: Vec<Point> = Vec::new();
-        for lane in r
-            .circulating_lanes
+        let base = format!("world/map/roundabouts/{}", r.id);
+        let color = kind_color(r.kind);
+        let mut ids: Vec<LaneId> = r.ring_lanes.clone();
+        ids.extend(
+            r.circulating_lanes
+                .iter()
+                .filter(|id| !r.ring_lanes.contains(id)),
+        );
+        let ring: Vec<_> = ids
             .iter()
             .filter_map(|id| map.lanes.get(id))
-        {
-            ring.extend_from_slice(&lane.centre);
+            .filter(|l| l.centre.len() >= 2)
+            .map(|l| strip(&l.centre, Z_ROUNDABOUTS))
+            .collect();
+        if !ring.is_empty() {
+            rec.log_static(
+                format!("{base}/ring_lanes"),
+                &LineStrips3D::new(ring)
+                    .with_colors([color])
+                    .with_radii([Radius::new_scene_units(0.3)]),
+            )
+            .with_context(|| err("a roundabout's ring lanes"))?;
         }
-        if ring.len() >= 2 {
-            rings.push(strip(&ring, Z_ROUNDABOUTS));
-            let guessed = if r.source == maps::RoundaboutSource::Guessed {
-                ", guessed"
-            } else {
-                ""
-            };
-            labels.push(format!(
-                "roundabout {} ({} entries, {} exits{guessed})",
-                r.id,
-                r.entries.len(),
-                r.exits.len()
-            ));
-        }
+        rec.log_static(
+            format!("{base}/label"),
+            &Points3D::new([[r.centre.x as f32, r.centre.y as f32, Z_ROUNDABOUT_LABELS]])
+                .with_labels([roundabout_label(r)])
+                .with_show_labels(true)
+                .with_colors([color])
+                .with_radii([Radius::new_scene_units(0.8)]),
+        )
+        .with_context(|| err("a roundabout's label"))?;
     }
-    rec.log_static(
-        "world/map/roundabouts",
-        &LineStrips3D::new(rings)
-            .with_labels(labels)
-            .with_colors([Color::from_rgb(220, 60, 220)])
-            .with_radii([Radius::new_scene_units(0.4)]),
-    )
-    .with_context(|| err("roundabouts"))?;
 
     let stops: Vec<_> = map
         .stop_lines
@@ -570,6 +626,132 @@ mod tests {
         // A standalone command's stream keeps every path as it is.
         assert_eq!(run.path("segmenter/train/loss"), "segmenter/train/loss");
         assert_eq!(run.under("x").path("agent/a"), "x/agent/a");
+    }
+
+    /// What logging a map writes, per entity path: its line strips, labels and colours.
+    #[derive(Debug, Default)]
+    struct Logged {
+        strips: usize,
+        labels: Vec<String>,
+        colors: Vec<Color>,
+    }
+
+    fn log_into_memory(map: &Map) -> Result<std::collections::BTreeMap<String, Logged>> {
+        let (inner, storage) = RecordingStreamBuilder::new("pipeline").memory()?;
+        log_map(&Stream::new(inner.clone()), map)?;
+        inner.flush_blocking()?;
+        let mut out = std::collections::BTreeMap::<String, Logged>::new();
+        for msg in storage.take() {
+            let rerun::log::LogMsg::ArrowMsg(_, arrow) = msg else {
+                continue;
+            };
+            let chunk = rerun::log::Chunk::from_arrow_msg(&arrow)?;
+            let path = chunk.entity_path().to_string();
+            let logged = out
+                .entry(path.trim_start_matches('/').to_owned())
+                .or_default();
+            let strips = LineStrips3D::descriptor_strips().component;
+            logged.strips += chunk
+                .iter_component::<rerun::components::LineStrip3D>(strips)
+                .map(|row| row.len())
+                .sum::<usize>();
+            for labels in [
+                LineStrips3D::descriptor_labels().component,
+                Points3D::descriptor_labels().component,
+            ] {
+                for row in chunk.iter_component::<rerun::components::Text>(labels) {
+                    logged
+                        .labels
+                        .extend(row.iter().map(|t| t.as_str().to_owned()));
+                }
+            }
+            for colors in [
+                LineStrips3D::descriptor_colors().component,
+                Points3D::descriptor_colors().component,
+            ] {
+                for row in chunk.iter_component::<Color>(colors) {
+                    logged.colors.extend(row.iter().copied());
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// A one-way `junction=circular` ring of radius 25 m, two lanes wide, with three
+    /// two-way arms, as OSM XML.
+    fn circular_two_lane_ring() -> String {
+        let n = 12;
+        let to_deg = |x: f64, y: f64| {
+            (
+                50.0 + y / 111_320.0,
+                10.0 + x / (111_320.0 * 50f64.to_radians().cos()),
+            )
+        };
+        let mut xml = String::from("<osm version=\"0.6\">\n");
+        let mut ring = String::new();
+        for i in 0..n {
+            let a = std::f64::consts::TAU * f64::from(i) / f64::from(n);
+            let (lat, lon) = to_deg(25.0 * a.cos(), 25.0 * a.sin());
+            xml += &format!(
+                "<node id=\"{}\" lat=\"{lat:.7}\" lon=\"{lon:.7}\"/>\n",
+                i + 1
+            );
+            if i % 4 == 0 {
+                let (lat, lon) = to_deg(125.0 * a.cos(), 125.0 * a.sin());
+                xml += &format!(
+                    "<node id=\"{}\" lat=\"{lat:.7}\" lon=\"{lon:.7}\"/>\n\
+                     <way id=\"{}\"><nd ref=\"{}\"/><nd ref=\"{}\"/>\
+                     <tag k=\"highway\" v=\"residential\"/><tag k=\"lanes\" v=\"4\"/></way>\n",
+                    100 + i,
+                    200 + i,
+                    i + 1,
+                    100 + i
+                );
+            }
+        }
+        for i in 0..=n {
+            ring += &format!("<nd ref=\"{}\"/>", i % n + 1);
+        }
+        xml + &format!(
+            "<way id=\"1\">{ring}<tag k=\"highway\" v=\"residential\"/><tag k=\"oneway\" v=\"yes\"/>\
+             <tag k=\"lanes\" v=\"2\"/><tag k=\"junction\" v=\"circular\"/></way>\n</osm>\n"
+        )
+    }
+
+    #[test]
+    fn ring_lanes_are_logged_apart_with_the_colour_and_label_of_their_kind() -> Result<()> {
+        let osm = maps::osm::parse_xml(circular_two_lane_ring().as_bytes())?;
+        let map = maps::import_osm(&osm, &Default::default())?;
+        let r = map.roundabouts.values().next().context("a ring")?;
+        assert_eq!((r.kind, r.lanes_across), (RoundaboutKind::Circular, 2));
+        assert!(r.ring_lanes.len() > r.circulating_lanes.len());
+
+        let logged = log_into_memory(&map)?;
+        let ring = &logged[&format!("world/map/roundabouts/{}/ring_lanes", r.id)];
+        assert_eq!(ring.strips, r.ring_lanes.len());
+        assert_eq!(ring.colors, [kind_color(RoundaboutKind::Circular)]);
+        let label = &logged[&format!("world/map/roundabouts/{}/label", r.id)];
+        assert_eq!(
+            label.labels,
+            [format!(
+                "#{} circular junction, 2 lanes wide, ring first (assumed)",
+                r.id
+            )]
+        );
+        assert_eq!(label.colors, [kind_color(RoundaboutKind::Circular)]);
+        // The ring's lanes are not drawn again with the others.
+        assert_eq!(
+            logged["world/map/lanes"].strips,
+            map.lanes.len() - r.ring_lanes.len()
+        );
+        let kinds = [
+            RoundaboutKind::Roundabout,
+            RoundaboutKind::Circular,
+            RoundaboutKind::MiniRoundabout,
+        ]
+        .map(kind_color);
+        assert!(kinds[0] != kinds[1] && kinds[1] != kinds[2] && kinds[0] != kinds[2]);
+        Ok(())
     }
 
     #[test]
