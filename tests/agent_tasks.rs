@@ -76,6 +76,30 @@ fn route_following_trains_and_evaluates_with_its_baselines() {
     }
     let table = std::fs::read_to_string(eval.join("eval.md")).unwrap();
     assert!(table.contains("| rule: pure pursuit | 3 |"), "{table}");
+
+    // --roundabout is for roundabout tasks: one clear error, nothing written.
+    let elsewhere = dir.path().join("eval-ring");
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "agent".as_ref(),
+        "eval".as_ref(),
+        "--agent".as_ref(),
+        agent.as_os_str(),
+        "--episodes".as_ref(),
+        "1".as_ref(),
+        "--roundabout".as_ref(),
+        "0".as_ref(),
+        "--out".as_ref(),
+        elsewhere.as_os_str(),
+    ]);
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("--roundabout is for roundabout tasks"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!elsewhere.exists());
 }
 
 #[test]

@@ -918,6 +918,13 @@ impl Task for RoundaboutInsertion {
         Some(config.deciding_every(steps))
     }
 
+    fn on_roundabout(config: &InsertionConfig, id: u32) -> Option<InsertionConfig> {
+        Some(InsertionConfig {
+            roundabout: Some(id),
+            ..config.clone()
+        })
+    }
+
     fn training_env(setup: &Arc<InsertionSetup>, traffic: TrafficLevel) -> Self {
         let mut env = RoundaboutInsertion::new(Arc::clone(setup));
         env.set_traffic(traffic);

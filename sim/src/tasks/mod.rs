@@ -120,6 +120,12 @@ pub trait Task: Env + Sized + 'static {
         None
     }
 
+    /// The task on roundabout `id` of the map only; None when the task does not run on a
+    /// roundabout.
+    fn on_roundabout(_config: &Self::Config, _id: u32) -> Option<Self::Config> {
+        None
+    }
+
     /// One environment of a training run at `traffic`.
     fn training_env(setup: &Arc<Self::Setup>, traffic: TrafficLevel) -> Self;
 

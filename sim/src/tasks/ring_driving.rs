@@ -677,6 +677,13 @@ impl Task for RingDriving {
         setup.map()
     }
 
+    fn on_roundabout(config: &RingDrivingConfig, id: u32) -> Option<RingDrivingConfig> {
+        Some(RingDrivingConfig {
+            roundabout: Some(id),
+            ..config.clone()
+        })
+    }
+
     fn camera_view(config: &RingDrivingConfig) -> Option<&CameraViewConfig> {
         match config.view {
             View::CameraSegmentation => config.camera.as_ref(),

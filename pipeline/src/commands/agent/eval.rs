@@ -103,6 +103,17 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
             )
         })?;
     }
+    if let Some(id) = args.roundabout {
+        config = T::on_roundabout(&config, id).ok_or_else(|| {
+            CliError::new(
+                format!(
+                    "--roundabout is for roundabout tasks; this agent's task is {}",
+                    task.task.name()
+                ),
+                "leave --roundabout out",
+            )
+        })?;
+    }
     let setup = crate::tasks::setup::<T>(map.as_deref(), &config)?;
     let choice = ConditionChoice {
         traffic: args.traffic.iter().map(|&t| t.into()).collect(),

@@ -178,6 +178,10 @@ pub struct EvalArgs {
     /// (`frame_steps`). 1 re-decides every 0.1 s; the baselines decide every N steps too.
     #[arg(long, value_name = "N")]
     pub action_repeat: Option<usize>,
+    /// Roundabout tasks only: evaluate on this roundabout of the map (its id, as `map info`
+    /// and `summary.json` list them) instead of the one(s) the agent was trained on.
+    #[arg(long, value_name = "ID")]
+    pub roundabout: Option<u32>,
 }
 
 /// `[agent]` of the `--config` file: the training settings, and one table per task of the
