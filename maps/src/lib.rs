@@ -24,6 +24,7 @@ pub mod profile;
 pub mod projection;
 pub mod raster;
 pub mod route;
+pub mod samples;
 pub mod spatial;
 pub mod summary;
 pub mod tags;

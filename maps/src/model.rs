@@ -211,6 +211,17 @@ pub enum RoundaboutKind {
     MiniRoundabout,
 }
 
+impl RoundaboutKind {
+    /// For people: `roundabout`, `circular junction` or `mini-roundabout`.
+    pub fn words(self) -> &'static str {
+        match self {
+            RoundaboutKind::Roundabout => "roundabout",
+            RoundaboutKind::Circular => "circular junction",
+            RoundaboutKind::MiniRoundabout => "mini-roundabout",
+        }
+    }
+}
+
 /// Who gives way where a roundabout's entry meets its ring.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -221,6 +232,21 @@ pub enum RoundaboutPriority {
     /// Traffic on the ring gives way to entering traffic (give-way or stop signs on the
     /// ring, or traffic signals on its nodes).
     Entering,
+}
+
+impl RoundaboutPriority {
+    /// For people, with where it comes from: e.g. `ring first (assumed)`.
+    pub fn words(self, source: PrioritySource) -> String {
+        let first = match self {
+            RoundaboutPriority::Circulating => "ring first",
+            RoundaboutPriority::Entering => "entries first",
+        };
+        let how = match source {
+            PrioritySource::Tags => "tagged",
+            PrioritySource::Assumed => "assumed",
+        };
+        format!("{first} ({how})")
+    }
 }
 
 /// Where a roundabout's [`RoundaboutPriority`] comes from.

@@ -36,10 +36,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use maps::geometry::Point;
-use maps::{
-    LaneId, Map, MarkingKind, PrioritySource, Roundabout, RoundaboutKind, RoundaboutPriority,
-    StopKind,
-};
+use maps::{LaneId, Map, MarkingKind, Roundabout, RoundaboutKind, StopKind};
 use rerun::{
     AsComponents, Color, LineStrips3D, Points3D, Radius, RecordingStream, RecordingStreamBuilder,
     RecordingStreamResult, TimelineName,
@@ -277,29 +274,18 @@ fn kind_color(kind: RoundaboutKind) -> Color {
 
 /// A roundabout's label: id, kind, lanes across and who has priority (and how we know).
 fn roundabout_label(r: &Roundabout) -> String {
-    let kind = match r.kind {
-        RoundaboutKind::Roundabout => "roundabout",
-        RoundaboutKind::Circular => "circular junction",
-        RoundaboutKind::MiniRoundabout => "mini-roundabout",
-    };
+    let kind = r.kind.words();
     let lanes = match r.lanes_across {
         1 => "1 lane".to_owned(),
         n => format!("{n} lanes"),
     };
-    let first = match r.priority {
-        RoundaboutPriority::Circulating => "ring first",
-        RoundaboutPriority::Entering => "entries first",
-    };
-    let how = match r.priority_source {
-        PrioritySource::Tags => "tagged",
-        PrioritySource::Assumed => "assumed",
-    };
+    let priority = r.priority.words(r.priority_source);
     let guessed = if r.source == maps::RoundaboutSource::Guessed {
         ", guessed"
     } else {
         ""
     };
-    format!("#{} {kind}, {lanes} wide, {first} ({how}){guessed}", r.id)
+    format!("#{} {kind}, {lanes} wide, {priority}{guessed}", r.id)
 }
 
 /// Logs a map under `world/map/...`, static.
@@ -677,50 +663,11 @@ mod tests {
         Ok(out)
     }
 
-    /// A one-way `junction=circular` ring of radius 25 m, two lanes wide, with three
-    /// two-way arms, as OSM XML.
-    fn circular_two_lane_ring() -> String {
-        let n = 12;
-        let to_deg = |x: f64, y: f64| {
-            (
-                50.0 + y / 111_320.0,
-                10.0 + x / (111_320.0 * 50f64.to_radians().cos()),
-            )
-        };
-        let mut xml = String::from("<osm version=\"0.6\">\n");
-        let mut ring = String::new();
-        for i in 0..n {
-            let a = std::f64::consts::TAU * f64::from(i) / f64::from(n);
-            let (lat, lon) = to_deg(25.0 * a.cos(), 25.0 * a.sin());
-            xml += &format!(
-                "<node id=\"{}\" lat=\"{lat:.7}\" lon=\"{lon:.7}\"/>\n",
-                i + 1
-            );
-            if i % 4 == 0 {
-                let (lat, lon) = to_deg(125.0 * a.cos(), 125.0 * a.sin());
-                xml += &format!(
-                    "<node id=\"{}\" lat=\"{lat:.7}\" lon=\"{lon:.7}\"/>\n\
-                     <way id=\"{}\"><nd ref=\"{}\"/><nd ref=\"{}\"/>\
-                     <tag k=\"highway\" v=\"residential\"/><tag k=\"lanes\" v=\"4\"/></way>\n",
-                    100 + i,
-                    200 + i,
-                    i + 1,
-                    100 + i
-                );
-            }
-        }
-        for i in 0..=n {
-            ring += &format!("<nd ref=\"{}\"/>", i % n + 1);
-        }
-        xml + &format!(
-            "<way id=\"1\">{ring}<tag k=\"highway\" v=\"residential\"/><tag k=\"oneway\" v=\"yes\"/>\
-             <tag k=\"lanes\" v=\"2\"/><tag k=\"junction\" v=\"circular\"/></way>\n</osm>\n"
-        )
-    }
-
     #[test]
     fn ring_lanes_are_logged_apart_with_the_colour_and_label_of_their_kind() -> Result<()> {
-        let osm = maps::osm::parse_xml(circular_two_lane_ring().as_bytes())?;
+        let osm = maps::osm::parse_xml(
+            maps::samples::two_lane_ring(r#"<tag k="junction" v="circular"/>"#).as_bytes(),
+        )?;
         let map = maps::import_osm(&osm, &Default::default())?;
         let r = map.roundabouts.values().next().context("a ring")?;
         assert_eq!((r.kind, r.lanes_across), (RoundaboutKind::Circular, 2));

@@ -448,14 +448,11 @@ fn full_size(map: &Arc<Map>, n: u64) {
         ring.exits.len()
     );
     let setup = insertion_setup(map, id).expect("a setup on the full-size ring");
-    let baselines = [
-        Baseline::Rule { threshold_m: 25.0 },
-        Baseline::Rule { threshold_m: 20.0 },
-        Baseline::Rule { threshold_m: 15.0 },
-        Baseline::Rule { threshold_m: 10.0 },
-        Baseline::AlwaysPermitted,
-        Baseline::Random,
-    ];
+    // The study's baselines but always Not Permitted, which never leaves the yield line.
+    let baselines: Vec<Baseline> = Baseline::STANDARD
+        .into_iter()
+        .filter(|b| *b != Baseline::AlwaysNotPermitted)
+        .collect();
     let mut all = Figures::default();
     println!("| baseline | episodes | reached | crashed | timed out | off-road |");
     println!("| --- | ---: | ---: | ---: | ---: | ---: |");

@@ -5,7 +5,7 @@ use std::path::Path;
 use anyhow::{Context as _, Result};
 use maps::DrivingSide;
 use maps::io::MapFileForm;
-use maps::model::{PrioritySource, RoundaboutKind, RoundaboutPriority};
+use maps::model::RoundaboutKind;
 use maps::summary::MapSummary;
 
 use crate::cli::InfoArgs;
@@ -101,20 +101,8 @@ fn format_summary(file: &Path, form: MapFileForm, s: &MapSummary) -> String {
         plural(minis, "mini-roundabout")
     );
     for r in &s.roundabouts {
-        let kind = match r.kind {
-            RoundaboutKind::Roundabout => "roundabout",
-            RoundaboutKind::Circular => "circular junction",
-            RoundaboutKind::MiniRoundabout => "mini-roundabout",
-        };
-        let first = match r.priority {
-            RoundaboutPriority::Circulating => "ring first",
-            RoundaboutPriority::Entering => "entries first",
-        };
-        let how = match r.priority_source {
-            PrioritySource::Tags => "tagged",
-            PrioritySource::Assumed => "assumed",
-        };
-        let priority = format!("{first} ({how})");
+        let kind = r.kind.words();
+        let priority = r.priority.words(r.priority_source);
         let osm = match r.osm_node_id {
             Some(node) => format!("OSM node {node}"),
             None => format!("OSM ways {:?}", r.osm_way_ids),
