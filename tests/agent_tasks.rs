@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{agent_train, assert_success, bundled_osm, read_json, run, stderr};
+use common::{agent_eval, agent_train, assert_success, bundled_osm, read_json, run, stderr};
 
 #[test]
 fn route_following_trains_and_evaluates_with_its_baselines() {
@@ -30,18 +30,7 @@ fn route_following_trains_and_evaluates_with_its_baselines() {
     assert_eq!(task["config"]["pool_size"], 16);
 
     let eval = dir.path().join("eval");
-    let out = run([
-        "--rerun".as_ref(),
-        "off".as_ref(),
-        "agent".as_ref(),
-        "eval".as_ref(),
-        "--agent".as_ref(),
-        agent.as_os_str(),
-        "--episodes".as_ref(),
-        "3".as_ref(),
-        "--out".as_ref(),
-        eval.as_os_str(),
-    ]);
+    let out = agent_eval(&agent, 3, &[], &eval);
     assert_success(&out, "agent eval of a route-following agent");
     let report = read_json(&eval.join("eval.json"));
     let conditions = report["conditions"].as_array().unwrap();
@@ -79,20 +68,7 @@ fn route_following_trains_and_evaluates_with_its_baselines() {
 
     // --roundabout is for roundabout tasks: one clear error, nothing written.
     let elsewhere = dir.path().join("eval-ring");
-    let out = run([
-        "--rerun".as_ref(),
-        "off".as_ref(),
-        "agent".as_ref(),
-        "eval".as_ref(),
-        "--agent".as_ref(),
-        agent.as_os_str(),
-        "--episodes".as_ref(),
-        "1".as_ref(),
-        "--roundabout".as_ref(),
-        "0".as_ref(),
-        "--out".as_ref(),
-        elsewhere.as_os_str(),
-    ]);
+    let out = agent_eval(&agent, 1, &["--roundabout", "0"], &elsewhere);
     assert!(!out.status.success());
     assert!(
         stderr(&out).contains("--roundabout is for roundabout tasks"),

@@ -74,6 +74,25 @@ pub fn pipeline() -> Command {
 }
 
 /// Runs the binary with `args`.
+/// `pipeline --rerun off agent eval --agent AGENT --episodes N ARGS... --out OUT`.
+#[allow(dead_code)]
+pub fn agent_eval(agent: &Path, episodes: usize, args: &[&str], out: &Path) -> Output {
+    let episodes = episodes.to_string();
+    let mut all: Vec<&std::ffi::OsStr> = vec![
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "agent".as_ref(),
+        "eval".as_ref(),
+        "--agent".as_ref(),
+        agent.as_os_str(),
+        "--episodes".as_ref(),
+        episodes.as_ref(),
+    ];
+    all.extend(args.iter().map(|a| std::ffi::OsStr::new(*a)));
+    all.extend(["--out".as_ref(), out.as_os_str()]);
+    run(all)
+}
+
 pub fn run<I, S>(args: I) -> Output
 where
     I: IntoIterator<Item = S>,
