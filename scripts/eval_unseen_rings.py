@@ -8,7 +8,7 @@ Agent and baselines run the same episodes of one evaluation; episode k of seed S
 traffic for every policy, so the comparison with the best baseline is paired episode by episode.
 
 Usage (from the repository root; finished trainings and evaluations are reused):
-    python3 scripts/eval_unseen_rings.py --pipeline /tmp/pipeline-eval --work runs/unseen_rings \
+    python3 scripts/eval_unseen_rings.py [--pipeline target/release/pipeline] --work runs/unseen_rings \
         --seeds 0,2,3 --episodes 100 --montlake-episodes 300 \
         [--steps 60000 --checkpoint-every 15000 --validation-episodes 50]
 (the last three: a longer run whose checkpoint validation on the training map chooses; not used so far).
@@ -127,7 +127,7 @@ def counts(rows):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--pipeline", required=True, help="the pipeline binary")
+    p.add_argument("--pipeline", default="target/release/pipeline", help="the pipeline binary")
     p.add_argument("--work", default="runs/unseen_rings")
     p.add_argument("--seeds", default="0,2,3")
     p.add_argument("--config", default="configs/insertion_quick.toml", help="training recipe")

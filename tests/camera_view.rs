@@ -10,7 +10,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{agent_train, assert_success, bundled_osm, read_json, run, stderr};
+use common::{agent_eval, agent_train, assert_success, bundled_osm, read_json, stderr};
 use models::segmenter::{PspNetConfig, files};
 
 /// Writes a small random segmenter into `dir`.
@@ -82,24 +82,11 @@ fn roundabout_driving_and_route_following_train_and_evaluate_on_the_camera_view(
         assert!(text.contains("\"channels\":6"), "{text}");
 
         let eval = dir.path().join(format!("{task}_eval"));
-        let mut args: Vec<&std::ffi::OsStr> = vec![
-            "--rerun".as_ref(),
-            "off".as_ref(),
-            "agent".as_ref(),
-            "eval".as_ref(),
-            "--agent".as_ref(),
-            agent.as_os_str(),
-            "--episodes".as_ref(),
-            "2".as_ref(),
-            "--no-baselines".as_ref(),
-            "--out".as_ref(),
-            eval.as_os_str(),
-        ];
+        let mut args = vec!["--no-baselines"];
         if task == "roundabout-driving" {
-            args.push(std::ffi::OsStr::new("--traffic"));
-            args.push(std::ffi::OsStr::new("medium"));
+            args.extend(["--traffic", "medium"]);
         }
-        let out = run(args);
+        let out = agent_eval(&agent, 2, &args, &eval);
         assert_success(&out, &format!("agent eval of a {task} camera agent"));
         let report = read_json(&eval.join("eval.json"));
         let first = &report["conditions"][0];

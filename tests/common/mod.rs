@@ -73,9 +73,7 @@ pub fn pipeline() -> Command {
     cmd
 }
 
-/// Runs the binary with `args`.
 /// `pipeline --rerun off agent eval --agent AGENT --episodes N ARGS... --out OUT`.
-#[allow(dead_code)]
 pub fn agent_eval(agent: &Path, episodes: usize, args: &[&str], out: &Path) -> Output {
     let episodes = episodes.to_string();
     let mut all: Vec<&std::ffi::OsStr> = vec![
@@ -93,6 +91,7 @@ pub fn agent_eval(agent: &Path, episodes: usize, args: &[&str], out: &Path) -> O
     run(all)
 }
 
+/// Runs the binary with `args`.
 pub fn run<I, S>(args: I) -> Output
 where
     I: IntoIterator<Item = S>,
