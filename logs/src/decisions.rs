@@ -101,8 +101,8 @@ pub struct Approach {
     pub stopped: bool,
 }
 
-/// Whether segments ab and cd cross.
-fn crosses(a: Point, b: Point, c: Point, d: Point) -> bool {
+/// Whether segments ab and cd cross (strictly).
+pub(crate) fn crosses(a: Point, b: Point, c: Point, d: Point) -> bool {
     let side = |p: Point, q: Point, r: Point| q.sub(p).cross(r.sub(p));
     let (d1, d2) = (side(c, d, a), side(c, d, b));
     let (d3, d4) = (side(a, b, c), side(a, b, d));

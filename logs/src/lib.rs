@@ -46,6 +46,7 @@ pub mod roles;
 pub mod scenes;
 pub mod simulated;
 pub mod source;
+pub mod traffic;
 
 pub use decode::{Codec, Decoded, DecodedLog, DecodedMessage, MessageKind, read_decoded};
 pub use error::{DecodeError, LogError, LogResult};

@@ -208,6 +208,12 @@ pub enum Group {
         #[command(subcommand)]
         command: crate::commands::replay::ReplayCommand,
     },
+    /// The traffic world against real drivers: calibrate it on recordings of a roundabout,
+    /// measure how far it drives from them.
+    Sim {
+        #[command(subcommand)]
+        command: crate::commands::sim::SimCommand,
+    },
     /// The main job: every stage in order on the bundled campus and roundabout, into one run
     /// folder with a report and one rerun recording; unchanged stages are skipped. Reads
     /// `pipeline.toml` from the current folder when there is no --config.

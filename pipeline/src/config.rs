@@ -37,9 +37,33 @@ pub struct Config {
     /// `[logs.decisions]`: how drivers' go / wait decisions are labelled.
     #[serde(default)]
     pub logs: LogsConfig,
+    /// `[traffic]` (with `[traffic.drivers]`) and `[layout]`: the world's traffic and route
+    /// layout for every task that drives among traffic, in place of the tasks' own tables (a
+    /// calibration written by `pipeline sim calibrate`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub traffic: Option<sim::world::TrafficConfig>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub layout: Option<sim::roundabout::LayoutConfig>,
+    /// `[recorded]`: the recordings' flows on their roundabout's entry lanes, for `--traffic
+    /// recorded` (written by `sim calibrate`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recorded: Option<RecordedFlows>,
+    /// A calibration file (`sim calibrate --out`) whose `[traffic]`, `[layout]` and
+    /// `[recorded]` apply where this file has none; relative to this file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<PathBuf>,
     /// The folder of the file, for its relative paths (not part of the TOML).
     #[serde(skip)]
     pub base_dir: PathBuf,
+}
+
+/// `[recorded]` of a calibration: the recordings' arrival flows.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordedFlows {
+    /// The roundabout of the recordings' map the lanes belong to.
+    pub roundabout: u32,
+    pub flows: Vec<sim::world::EntryFlow>,
 }
 
 /// `[logs]` of the config.
@@ -94,7 +118,32 @@ impl Config {
             )
         })?;
         config.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        if let Some(file) = config.calibration.clone() {
+            let file = config.resolve(&file);
+            let calibration = Self::load(Some(&file))?;
+            config.traffic = config.traffic.take().or(calibration.traffic);
+            config.layout = config.layout.take().or(calibration.layout);
+            config.recorded = config.recorded.take().or(calibration.recorded);
+        }
+        config.apply_world();
         Ok(config)
+    }
+
+    /// Puts `[traffic]` and `[layout]` (when given) into every task's settings that runs the
+    /// traffic world.
+    pub fn apply_world(&mut self) {
+        if let Some(traffic) = &self.traffic {
+            self.agent.task.traffic = traffic.clone();
+            self.agent.roundabout_driving.traffic = traffic.clone();
+        }
+        if let Some(recorded) = &self.recorded {
+            self.agent.task.traffic.flows = recorded.flows.clone();
+            self.agent.roundabout_driving.traffic.flows = recorded.flows.clone();
+        }
+        if let Some(layout) = self.layout {
+            self.agent.task.layout = layout;
+            self.agent.roundabout_driving.layout = layout;
+        }
     }
 
     pub fn parse(text: &str) -> std::result::Result<Config, String> {

@@ -56,6 +56,7 @@ pub fn dispatch(ctx: &commands::Context<'_>) -> anyhow::Result<()> {
         cli::Group::Logs { command } => commands::logs::run(ctx, command),
         cli::Group::Segmenter { command } => commands::segmenter::run(ctx, command),
         cli::Group::Replay { command } => commands::replay::run(ctx, command),
+        cli::Group::Sim { command } => commands::sim::run(ctx, command),
         cli::Group::Run(args) => commands::run::run(ctx, args),
     }
 }

@@ -6,6 +6,9 @@
 //!
 //! `--action-repeat N` lets every policy decide every N world steps (`InsertionConfig::action_repeat`).
 //! `--failures` also lists, per policy and condition, the episodes that did not reach the goal.
+//! `--world FILE` runs the calibrated world of a `pipeline sim calibrate` file (its `[traffic]`,
+//! `[layout]` and `[recorded]` flows), adds its critical-gap rule and prints what each traffic
+//! level means in vehicles per hour on the map's roundabout.
 #![allow(clippy::print_stdout, clippy::print_stderr)]
 
 use std::sync::Arc;
@@ -39,6 +42,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--json" => json = Some(value()?),
             "--action-repeat" => config.action_repeat = value()?.parse()?,
             "--failures" => failures = true,
+            "--world" => world(&value()?, &mut config)?,
             other => return Err(format!("unknown argument {other}").into()),
         }
     }
@@ -60,9 +64,32 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let map = maps::import_file(std::path::Path::new(&map_path), &Default::default())
         .map_err(|e| format!("{map_path}: {e}"))?;
     let setup = InsertionSetup::new(Arc::new(map), config)?;
+    let mut baselines = Baseline::STANDARD.to_vec();
+    if let Some(gap) = setup.config().traffic.drivers.critical_gap {
+        baselines.push(Baseline::CriticalGap {
+            seconds: gap.median_s,
+        });
+    }
+    if let Some(capacity) = setup.config().traffic.capacity {
+        for layout in setup.layouts() {
+            let entries = layout.usable_entries().count();
+            let levels: Vec<String> = TrafficLevel::ALL
+                .iter()
+                .map(|l| {
+                    let q = capacity.entry_flow_vph(layout, l.saturation().unwrap_or(0.0));
+                    format!(
+                        "{} {q:.0} veh/h per entry ({:.0} in all)",
+                        l.name(),
+                        q * entries as f64
+                    )
+                })
+                .collect();
+            eprintln!("roundabout {}: {}", layout.roundabout.0, levels.join(", "));
+        }
+    }
     let started = std::time::Instant::now();
     let mut rows = Vec::new();
-    for baseline in Baseline::STANDARD {
+    for baseline in baselines {
         let episodes = evaluate_episodes(&setup, || baseline, &conditions, &options, &|_| {});
         if failures {
             for (condition, summaries) in conditions.iter().zip(&episodes) {
@@ -99,6 +126,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map(|(name, results)| serde_json::json!({"policy": name, "conditions": results}))
             .collect();
         std::fs::write(&path, serde_json::to_string_pretty(&value)?)?;
+    }
+    Ok(())
+}
+
+/// `[traffic]`, `[layout]` and `[recorded]` of a calibration file into `config`.
+fn world(path: &str, config: &mut InsertionConfig) -> Result<(), Box<dyn std::error::Error>> {
+    #[derive(serde::Deserialize)]
+    struct Recorded {
+        flows: Vec<sim::world::EntryFlow>,
+    }
+    #[derive(serde::Deserialize)]
+    struct Calibration {
+        traffic: sim::world::TrafficConfig,
+        layout: sim::roundabout::LayoutConfig,
+        recorded: Option<Recorded>,
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
+    let c: Calibration = toml::from_str(&text).map_err(|e| format!("{path}: {e}"))?;
+    config.traffic = c.traffic;
+    config.layout = c.layout;
+    if let Some(r) = c.recorded {
+        config.traffic.flows = r.flows;
     }
     Ok(())
 }

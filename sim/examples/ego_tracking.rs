@@ -22,7 +22,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let mut worst_all: f64 = 0.0;
     for (ri, route) in layout.routes.iter().enumerate() {
-        let mut world = World::new(Arc::clone(&layout), traffic, EgoConfig::default(), 0);
+        let mut world = World::new(
+            Arc::clone(&layout),
+            traffic.clone(),
+            EgoConfig::default(),
+            0,
+        );
         world.insert_ego(ri, 5.0, route.path.speed_at(5.0), 0.0);
         let mut worst = (0.0_f64, 0.0);
         for _ in 0..600 {

@@ -41,7 +41,7 @@ pub trait Policy: Send {
     }
 }
 
-/// The baselines of the Parma study, plus the constant "never go" policy.
+/// The baselines of the Parma study, the constant "never go" policy, and a critical-gap rule.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Baseline {
@@ -54,6 +54,12 @@ pub enum Baseline {
     AlwaysNotPermitted,
     /// Uniform over the actions, drawn from (episode seed, step).
     Random,
+    /// Gap acceptance as drivers do it: go when every circulating vehicle is at least
+    /// `seconds` (a critical gap, e.g. a calibration's) away in time from the ego's merge
+    /// point, beyond the time the ego needs to reach its yield line at its speed.
+    CriticalGap {
+        seconds: f64,
+    },
 }
 
 impl Baseline {
@@ -75,6 +81,7 @@ impl Baseline {
             Baseline::AlwaysPermitted => "always permitted".into(),
             Baseline::AlwaysNotPermitted => "always not permitted".into(),
             Baseline::Random => "random".into(),
+            Baseline::CriticalGap { seconds } => format!("critical gap {seconds:.2} s"),
         }
     }
 
@@ -83,6 +90,15 @@ impl Baseline {
         match *self {
             Baseline::Rule { threshold_m } => {
                 if input.state.ego_entered || input.state.nearest_circulating_m > threshold_m {
+                    Action::Permitted
+                } else {
+                    Action::NotPermitted
+                }
+            }
+            Baseline::CriticalGap { seconds } => {
+                let s = input.state;
+                let to_line_s = s.to_yield_line_m.max(0.0) / s.speed_mps.max(2.0);
+                if s.ego_entered || s.merge_lag_s.is_none_or(|lag| lag >= to_line_s + seconds) {
                     Action::Permitted
                 } else {
                     Action::NotPermitted

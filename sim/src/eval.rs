@@ -221,7 +221,7 @@ where
         evaluate_task(setup, || agent.clone(), &conditions, options, &quiet),
     )];
     if baselines {
-        for (name, make_policy) in T::baselines() {
+        for (name, make_policy) in T::setup_baselines(setup) {
             progress(&format!("baseline {name}"));
             let episodes = evaluate_task(setup, &make_policy, &conditions, options, &quiet);
             policies.push((name, episodes));

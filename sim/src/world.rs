@@ -32,6 +32,14 @@ use crate::roundabout::{RingRoute, RoundaboutLayout};
 use crate::scene::{Actor, ActorKind, OrientedBox};
 use crate::spatial::UniformGrid;
 
+/// Drivers with a measured critical gap brake for their yield line at this share of their
+/// comfortable deceleration, reaching the speed that allows within this time, s.
+const ROLLING_DECEL_SHARE: f64 = 0.7;
+const ROLLING_REACT_S: f64 = 0.5;
+/// Drivers with a measured critical gap enter only with this much room beyond a slow car
+/// (under [`QUEUE_MPS`]) just past their merge point, m.
+const ROOM_TO_ENTER_M: f64 = 3.0;
+const QUEUE_MPS: f64 = 3.0;
 /// How far ahead other drivers look for cars covering their path, m.
 const OTHERS_OBSTACLE_HORIZON_M: f64 = 8.0;
 /// Below this speed a driver has stopped (and a commitment to a gap is reconsidered).
@@ -50,25 +58,42 @@ const LANE_CHANGE_LOOK_M: f64 = 25.0;
 const LANE_CHANGE_GAP_M: f64 = 1.0;
 const LANE_CHANGE_HEADWAY_S: f64 = 1.2;
 
-/// Traffic density, as in the Parma study: at most 4 / 6 / 8 other vehicles in the
-/// roundabout (its approaches, ring and exits) at once.
+/// Traffic density. Uncalibrated (no [`TrafficConfig::capacity`]), as in the Parma study:
+/// at most 4 / 6 / 8 other vehicles in the roundabout (its approaches, ring and exits) at
+/// once. With a capacity model (a calibrated world), each usable entry gets the same Poisson
+/// arrivals, the flow at which the busiest entry runs at [`TrafficLevel::saturation`] of its
+/// capacity. `Recorded` is the recordings' own flows ([`TrafficConfig::flows`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TrafficLevel {
     Low,
     Medium,
     High,
+    Recorded,
 }
 
 impl TrafficLevel {
+    /// The named levels (not `Recorded`, which needs recordings).
     pub const ALL: [TrafficLevel; 3] =
         [TrafficLevel::Low, TrafficLevel::Medium, TrafficLevel::High];
 
+    /// The level's cap on other vehicles in an uncalibrated world (none at `Recorded`).
     pub fn max_vehicles(self) -> usize {
         match self {
             TrafficLevel::Low => 4,
             TrafficLevel::Medium => 6,
             TrafficLevel::High => 8,
+            TrafficLevel::Recorded => usize::MAX,
+        }
+    }
+
+    /// The busiest entry's demand over its capacity in a world with a capacity model.
+    pub fn saturation(self) -> Option<f64> {
+        match self {
+            TrafficLevel::Low => Some(0.3),
+            TrafficLevel::Medium => Some(0.6),
+            TrafficLevel::High => Some(0.9),
+            TrafficLevel::Recorded => None,
         }
     }
 
@@ -77,6 +102,7 @@ impl TrafficLevel {
             TrafficLevel::Low => "low",
             TrafficLevel::Medium => "medium",
             TrafficLevel::High => "high",
+            TrafficLevel::Recorded => "recorded",
         }
     }
 }
@@ -88,10 +114,75 @@ impl std::str::FromStr for TrafficLevel {
             "low" => Ok(TrafficLevel::Low),
             "medium" => Ok(TrafficLevel::Medium),
             "high" => Ok(TrafficLevel::High),
+            "recorded" => Ok(TrafficLevel::Recorded),
             other => Err(format!(
-                "unknown traffic level `{other}` (low, medium or high)"
+                "unknown traffic level `{other}` (low, medium, high or recorded)"
             )),
         }
+    }
+}
+
+/// An entry's capacity from its drivers' gap acceptance (the HCM's exponential form,
+/// Highway Capacity Manual 6th ed., eq. 22-1 with A = 3600 / t_f, B = (t_c − t_f / 2) /
+/// 3600): `c = 3600 / t_f · exp(−(t_c − t_f / 2) · v_c / 3600)` vehicles per hour at a
+/// conflicting flow of `v_c` vehicles per hour.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CapacityModel {
+    /// Critical gap, s.
+    pub critical_gap_s: f64,
+    /// Follow-up headway, s.
+    pub follow_up_s: f64,
+}
+
+impl CapacityModel {
+    /// Entry capacity at conflicting flow `conflicting_vph`, veh/h.
+    pub fn entry_capacity_vph(&self, conflicting_vph: f64) -> f64 {
+        3600.0 / self.follow_up_s
+            * (-(self.critical_gap_s - self.follow_up_s / 2.0) * conflicting_vph / 3600.0).exp()
+    }
+
+    /// The arrival flow per usable entry of `layout` (the same on each, routes drawn alike)
+    /// at which the busiest entry's demand is `saturation` of its capacity, veh/h.
+    pub fn entry_flow_vph(&self, layout: &RoundaboutLayout, saturation: f64) -> f64 {
+        // Per entry: how many entries' worth of flow passes its merge point (each other
+        // entry's share of routes that drive the merge lane, on the way round).
+        let entries: Vec<usize> = layout.usable_entries().collect();
+        let passing = entries
+            .iter()
+            .map(|&e| {
+                let Some(&first) = layout.routes_by_entry[e].first() else {
+                    return 0.0;
+                };
+                let lane = layout.routes[first].merge_lane;
+                entries
+                    .iter()
+                    .filter(|&&o| o != e)
+                    .map(|&o| {
+                        let routes = &layout.routes_by_entry[o];
+                        let through = routes
+                            .iter()
+                            .filter(|&&r| {
+                                let route = &layout.routes[r];
+                                route.merge_lane != lane && route.ring_lane_start(lane).is_some()
+                            })
+                            .count();
+                        through as f64 / routes.len().max(1) as f64
+                    })
+                    .sum::<f64>()
+            })
+            .fold(0.0, f64::max);
+        // Demand over capacity rises with the flow: bisect for `saturation`.
+        let (mut lo, mut hi) = (0.0, 3600.0 / self.follow_up_s.max(0.1));
+        for _ in 0..60 {
+            let q = (lo + hi) / 2.0;
+            if q / self.entry_capacity_vph(q * passing) < saturation {
+                lo = q;
+            } else {
+                hi = q;
+            }
+        }
+        (lo + hi) / 2.0
     }
 }
 
@@ -136,6 +227,58 @@ pub struct DriverConfig {
     pub merge_brake_mps2: Span,
     /// Hardest braking any vehicle can do, m/s².
     pub max_brake_mps2: f64,
+    /// Gap acceptance as the traffic-engineering literature measures it (set by `sim
+    /// calibrate`): a driver enters when every circulating vehicle is at least its critical
+    /// gap away in time from the merge point, the critical gaps of the drivers following
+    /// this distribution; `critical_gap_s` is then unused. Unset (the default), drivers
+    /// add `critical_gap_s` to the time they need to clear the merge point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub critical_gap: Option<CriticalGap>,
+}
+
+/// A lognormal distribution of drivers' critical gaps: a driver of aggressiveness `a` has
+/// the distribution's `1 − a` quantile (clamped to the 5th-95th percentiles: beyond, a
+/// driver would wait all day, or take any gap), so the most aggressive drivers accept the
+/// shortest gaps.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CriticalGap {
+    /// The median critical gap, s.
+    pub median_s: f64,
+    /// Standard deviation of its logarithm.
+    pub sigma: f64,
+}
+
+impl CriticalGap {
+    /// The critical gap of a driver of aggressiveness `aggressiveness`, s.
+    pub fn of(&self, aggressiveness: f64) -> f64 {
+        use statrs::distribution::{ContinuousCDF, Normal};
+        let p = (1.0 - aggressiveness).clamp(0.05, 0.95);
+        let z = Normal::standard().inverse_cdf(p);
+        self.median_s * (self.sigma * z).exp()
+    }
+}
+
+/// Arrivals on one entry of the roundabout (see [`TrafficConfig::flows`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EntryFlow {
+    /// The entry lane (as the map numbers its lanes; `RoundaboutLayout::entries`).
+    pub lane: u32,
+    /// Vehicles per hour.
+    pub vph: f64,
+    /// Where they go: each exit lane (`RoundaboutLayout::exits`) with its share of the
+    /// entry's vehicles; empty, every route of the entry alike.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub exits: Vec<ExitShare>,
+}
+
+/// One exit's share of an entry's vehicles.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExitShare {
+    pub lane: u32,
+    pub share: f64,
 }
 
 impl Default for DriverConfig {
@@ -149,12 +292,13 @@ impl Default for DriverConfig {
             critical_gap_s: Span::new(2.0, 0.5),
             merge_brake_mps2: Span::new(8.0, 8.0),
             max_brake_mps2: 8.0,
+            critical_gap: None,
         }
     }
 }
 
 /// The traffic of a world.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct TrafficConfig {
     pub level: TrafficLevel,
@@ -176,6 +320,14 @@ pub struct TrafficConfig {
     pub vehicle_length_m: Span,
     pub vehicle_width_m: Span,
     pub drivers: DriverConfig,
+    /// The `recorded` level's arrivals per entry (Poisson, each at its own rate; see
+    /// [`World::spawn_flows`]): every entry listed gets its flow, the others none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub flows: Vec<EntryFlow>,
+    /// Entry capacity from gap acceptance (set by `sim calibrate`): the named levels become
+    /// fractions of it (see [`TrafficLevel`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub capacity: Option<CapacityModel>,
 }
 
 impl Default for TrafficConfig {
@@ -192,14 +344,83 @@ impl Default for TrafficConfig {
             vehicle_length_m: Span::new(3.9, 4.9),
             vehicle_width_m: Span::new(1.7, 2.0),
             drivers: DriverConfig::default(),
+            flows: Vec::new(),
+            capacity: None,
         }
     }
 }
 
 impl TrafficConfig {
-    /// Cap on other vehicles in the roundabout.
+    /// That every flow names an entry lane of `layout` with a usable route, at a finite
+    /// non-negative rate; the error names the first that does not.
+    pub fn check_flows(&self, layout: &RoundaboutLayout) -> Result<(), String> {
+        for f in &self.flows {
+            if !(f.vph.is_finite() && f.vph >= 0.0) {
+                return Err(format!("the flow of lane {} is {} veh/h", f.lane, f.vph));
+            }
+            let usable = layout
+                .usable_entries()
+                .any(|e| layout.entries[e].lane.0 == f.lane);
+            if !usable {
+                let lanes: Vec<String> = layout
+                    .usable_entries()
+                    .map(|e| layout.entries[e].lane.0.to_string())
+                    .collect();
+                return Err(format!(
+                    "lane {} is no entry of roundabout {} (its entry lanes: {})",
+                    f.lane,
+                    layout.roundabout.0,
+                    lanes.join(", ")
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether arrivals come per entry ([`World::spawn_flows`]): at the `recorded` level, or
+    /// at any level with a capacity model.
+    pub fn per_entry_arrivals(&self) -> bool {
+        self.level == TrafficLevel::Recorded || self.capacity.is_some()
+    }
+
+    /// Cap on other vehicles in the roundabout (none with per-entry arrivals unless
+    /// `max_vehicles` sets one).
     pub fn cap(&self) -> usize {
-        self.max_vehicles.unwrap_or(self.level.max_vehicles())
+        match (self.max_vehicles, self.per_entry_arrivals()) {
+            (Some(cap), _) => cap,
+            (None, false) => self.level.max_vehicles(),
+            (None, true) => usize::MAX,
+        }
+    }
+
+    /// Each entry of `layout`'s arrival rate, veh/h: the recorded flows at the `recorded`
+    /// level, the capacity model's flow at a named level (none without per-entry arrivals).
+    pub fn entry_rates(&self, layout: &RoundaboutLayout) -> Vec<f64> {
+        match (self.level.saturation(), self.capacity) {
+            (Some(saturation), Some(capacity)) => {
+                let q = capacity.entry_flow_vph(layout, saturation);
+                (0..layout.entries.len())
+                    .map(|e| {
+                        if layout.routes_by_entry[e].is_empty() {
+                            0.0
+                        } else {
+                            q
+                        }
+                    })
+                    .collect()
+            }
+            _ => layout
+                .entries
+                .iter()
+                .map(|e| {
+                    self.flows
+                        .iter()
+                        .filter(|f| f.lane == e.lane.0)
+                        .map(|f| f.vph)
+                        .sum()
+                })
+                .collect(),
+        }
     }
 }
 
@@ -214,6 +435,9 @@ pub struct Driver {
     pub comfort_decel_mps2: f64,
     pub critical_gap_s: f64,
     pub merge_brake_mps2: f64,
+    /// The critical gap as measured at a yield line (lag to the next circulating vehicle),
+    /// when drivers follow [`DriverConfig::critical_gap`], s.
+    pub critical_lag_s: Option<f64>,
 }
 
 impl Driver {
@@ -228,6 +452,18 @@ impl Driver {
             comfort_decel_mps2: config.comfort_decel_mps2.at(a),
             critical_gap_s: config.critical_gap_s.at(a),
             merge_brake_mps2: config.merge_brake_mps2.at(a),
+            critical_lag_s: config.critical_gap.map(|g| g.of(a)),
+        }
+    }
+
+    /// The least time a circulating vehicle must be away from the merge point for this
+    /// driver to enter, given the time it needs to clear that point and to reach its yield
+    /// line, s: its critical gap left when it reaches the line (a driver with a measured
+    /// critical gap), or the time to clear the merge point plus its margin.
+    pub fn needed_lag_s(&self, clearing_s: f64, to_line_s: f64) -> f64 {
+        match self.critical_lag_s {
+            Some(gap) => to_line_s + gap,
+            None => clearing_s + self.critical_gap_s,
         }
     }
 
@@ -390,6 +626,12 @@ pub struct World {
     /// Per vehicle, whether it waits to change lanes ([`World::lane_change_wait`]),
     /// refreshed with the lookahead.
     waiting_to_change: Vec<bool>,
+    /// With per-entry flows: each layout entry's arrival rate, veh/h, and the arrivals
+    /// waiting off the map for room on its approach.
+    flow_rates: Vec<f64>,
+    pending: Vec<u32>,
+    /// With per-entry flows that say where their vehicles go: each route's weight.
+    route_weights: Vec<f64>,
 }
 
 impl World {
@@ -405,7 +647,34 @@ impl World {
             region.extend(Point::new(region.min.x - 10.0, region.min.y - 10.0));
             region.extend(Point::new(region.max.x + 10.0, region.max.y + 10.0));
         }
+        let flow_rates = config.entry_rates(&layout);
+        let route_weights = layout
+            .routes
+            .iter()
+            .map(|r| {
+                let entry_lane = layout.entries[r.entry].lane.0;
+                let exit_lane = layout.exits[r.exit].lane.0;
+                let flows: Vec<&EntryFlow> = config
+                    .flows
+                    .iter()
+                    .filter(|_| config.level == TrafficLevel::Recorded)
+                    .filter(|f| f.lane == entry_lane && !f.exits.is_empty())
+                    .collect();
+                if flows.is_empty() {
+                    return 1.0;
+                }
+                flows
+                    .iter()
+                    .flat_map(|f| &f.exits)
+                    .filter(|x| x.lane == exit_lane)
+                    .map(|x| x.share)
+                    .sum()
+            })
+            .collect();
         World {
+            route_weights,
+            flow_rates,
+            pending: Vec::new(),
             grid: UniformGrid::new(region, 8.0),
             multi_lane: layout.ring_lane_ranks.values().any(|r| *r > 0),
             layout,
@@ -437,6 +706,11 @@ impl World {
 
     pub fn stats(&self) -> WorldStats {
         self.stats
+    }
+
+    /// Arrivals of per-entry flows still waiting off the map for room on their approach.
+    pub fn waiting_to_enter(&self) -> u64 {
+        self.pending.iter().map(|&n| u64::from(n)).sum()
     }
 
     pub fn vehicles(&self) -> &[Vehicle] {
@@ -852,7 +1126,7 @@ impl World {
                     && let Some(their_d) = self
                         .distance_to_piece(j, key)
                         .filter(|&d| d > 0.0 && d < start)
-                    && (!self.multi_lane
+                    && (!(self.multi_lane || self.config.drivers.critical_gap.is_some())
                         || self.vehicles[i].id < other.id
                         || !self.merges_ahead_of(i, j))
                 {
@@ -866,8 +1140,9 @@ impl World {
     /// Whether committed vehicle `i` is about to merge ahead of vehicle `j`: into a lane
     /// `j` is about to enter, from another piece, nearer to its start. Two vehicles each
     /// about to merge ahead of the other (into different lanes whose connections cross)
-    /// would wait for each other for ever; on a multi-lane ring, the older one (lower id)
-    /// goes first.
+    /// would wait for each other for ever; on a multi-lane ring (and among drivers with
+    /// measured critical gaps, who commit from farther off), the older one (lower id) goes
+    /// first.
     fn merges_ahead_of(&self, i: usize, j: usize) -> bool {
         let Some(&(their_key, _)) = self.lookahead[i].first() else {
             return false;
@@ -913,11 +1188,26 @@ impl World {
             if to_line > self.config.decision_distance_m {
                 continue;
             }
-            // On a multi-lane ring, a committed driver who could still stop comfortably
-            // short of the line keeps looking, and withdraws when the gap has closed (a
-            // circulating car sped up, or the driver was held up on the way).
+            // On a multi-lane ring (or with measured critical gaps, judged from far off), a
+            // committed driver who could still stop comfortably short of the line keeps
+            // looking, and withdraws when the gap has closed (a circulating car sped up, or
+            // the driver was held up on the way).
             let stopping_m = v.speed * v.speed / (2.0 * v.driver.comfort_decel_mps2);
-            if v.committed && (!self.multi_lane || to_line < stopping_m + 0.5) {
+            let reconsiders = self.multi_lane || v.driver.critical_lag_s.is_some();
+            if v.committed && (!reconsiders || to_line < stopping_m + 0.5) {
+                continue;
+            }
+            // A driver with a measured critical gap judges gaps only at the head of its queue:
+            // behind a driver still waiting at the line, it waits too.
+            if v.driver.critical_lag_s.is_some()
+                && to_line >= -0.5
+                && self
+                    .leader(i)
+                    .is_some_and(|l| !self.vehicles[l.index].committed)
+            {
+                if v.committed {
+                    withdraw.push(i);
+                }
                 continue;
             }
             if to_line < -0.5 {
@@ -930,8 +1220,17 @@ impl World {
             let to_clear = (route.merge_s - v.front_s()).max(0.0) + v.length;
             let (speed, accel) = (v.speed, v.driver.max_accel_mps2);
             let my_time = ((speed * speed + 2.0 * accel * to_clear).sqrt() - speed) / accel;
+            let line = to_line.max(0.0);
+            let to_line_s = ((speed * speed + 2.0 * accel * line).sqrt() - speed) / accel;
             let clear = self.vehicles.iter().enumerate().all(|(j, o)| {
                 if j == i || !o.committed {
+                    return true;
+                }
+                // A driver with a measured critical gap looks at the ring: a car still before
+                // its own yield line is not in the ring's traffic yet.
+                if v.driver.critical_lag_s.is_some()
+                    && o.front_s() < self.layout.routes[o.route].yield_s
+                {
                     return true;
                 }
                 // Stopped for this very car, standing in its way: it waits for this car to
@@ -955,7 +1254,7 @@ impl World {
                         o.s > c.to_s
                             || (o.s < c.from_s
                                 && (c.from_s - o.s) / o.speed.max(2.0)
-                                    > my_time + v.driver.critical_gap_s)
+                                    > v.driver.needed_lag_s(my_time, to_line_s))
                     });
                 // Along its route to the first of the lanes this entry gives way to (the merge
                 // lane, and the lanes an entry into an inner lane crosses) that it drives.
@@ -976,12 +1275,21 @@ impl World {
                 if d <= 0.0 && d > -o.length {
                     return false; // on the merge lane right at the merge point
                 }
+                // A driver with a measured critical gap needs room past the merge point: not
+                // into a queue standing on the ring (that is how rings lock up).
+                if v.driver.critical_lag_s.is_some()
+                    && d <= 0.0
+                    && d > -(o.length + v.length + ROOM_TO_ENTER_M)
+                    && o.speed < QUEUE_MPS
+                {
+                    return false;
+                }
                 if d <= 0.0 {
                     return true;
                 }
                 // A committed car may speed up: assume at least 2 m/s.
                 front_to_merge > 2.0
-                    && front_to_merge / o.speed.max(2.0) > my_time + v.driver.critical_gap_s
+                    && front_to_merge / o.speed.max(2.0) > v.driver.needed_lag_s(my_time, to_line_s)
             });
             match (clear, v.committed) {
                 (true, false) => commit.push(i),
@@ -1073,7 +1381,18 @@ impl World {
             let gap = start_s - v.front_s() + v.driver.min_gap_m - 0.3;
             a = a.min(v.driver.idm(v.speed, v0, Some((gap, v.speed))));
         }
-        if !v.committed {
+        if !v.committed && v.driver.critical_lag_s.is_some() {
+            // A driver judging gaps on the way rolls up to the line, braking only as late as
+            // it can still stop short of it at most [`ROLLING_DECEL_SHARE`] of its
+            // comfortable deceleration.
+            let to_line = route.yield_s - v.front_s();
+            if to_line > -0.5 {
+                let room = (to_line - 0.3).max(0.0);
+                let allowed =
+                    (2.0 * ROLLING_DECEL_SHARE * v.driver.comfort_decel_mps2 * room).sqrt();
+                a = a.min((allowed - v.speed) / ROLLING_REACT_S);
+            }
+        } else if !v.committed {
             let to_line = route.yield_s - v.front_s();
             if to_line > -0.5 {
                 // The line as a standing obstacle; the front stops just short of it.
@@ -1230,8 +1549,13 @@ impl World {
     }
 
     /// Below the cap, a new vehicle arrives with probability `arrivals_per_s * step` on a
-    /// random approach (uniform over entries, then routes), if its start is free.
+    /// random approach (uniform over entries, then routes), if its start is free; with
+    /// per-entry flows, see [`World::spawn_flows`].
     fn spawn(&mut self) {
+        if self.config.per_entry_arrivals() {
+            self.spawn_flows();
+            return;
+        }
         if self.others_count() >= self.config.cap() {
             return;
         }
@@ -1239,38 +1563,102 @@ impl World {
         // Every draw is made whether or not it is used, so one choice never shifts the next.
         let arrive = self.rng.random::<f64>() < p;
         let entry_draw: f64 = self.rng.random();
-        let route_draw: f64 = self.rng.random();
-        let aggressiveness: f64 = self.rng.random();
-        let length_draw: f64 = self.rng.random();
-        let width_draw: f64 = self.rng.random();
+        let draws = self.spawn_draws();
         if !arrive {
             return;
         }
-        // Only on routes where the longest car fits before its yield line: on a shorter
-        // approach (cut at a junction next to the ring) a car would appear already over
-        // its line, on top of the cars entering there.
-        let room = self
-            .config
-            .vehicle_length_m
-            .at(0.0)
-            .max(self.config.vehicle_length_m.at(1.0));
-        let layout = Arc::clone(&self.layout);
-        let roomy = |r: &usize| layout.routes[*r].yield_s >= room;
-        let entries: Vec<usize> = layout
+        let entries: Vec<usize> = self
+            .layout
             .usable_entries()
-            .filter(|&e| layout.routes_by_entry[e].iter().any(roomy))
+            .filter(|&e| self.roomy_routes(e).next().is_some())
             .collect();
         if entries.is_empty() {
             return;
         }
         let entry = entries[((entry_draw * entries.len() as f64) as usize).min(entries.len() - 1)];
-        let routes: Vec<usize> = layout.routes_by_entry[entry]
+        self.try_spawn(entry, draws);
+    }
+
+    /// Per-entry flows: each entry's arrivals are a Poisson process at its rate; an arrival
+    /// that cannot enter its approach yet waits (off the map) and spawns at the first step
+    /// its start is free, so that the entry's flow is kept whatever the queue.
+    fn spawn_flows(&mut self) {
+        if self.pending.len() != self.flow_rates.len() {
+            self.pending = vec![0; self.flow_rates.len()];
+        }
+        for entry in 0..self.flow_rates.len() {
+            let p = (self.flow_rates[entry] / 3600.0 * self.config.step_s).clamp(0.0, 1.0);
+            let arrive = self.rng.random::<f64>() < p;
+            let draws = self.spawn_draws();
+            if arrive {
+                self.pending[entry] += 1;
+            }
+            if self.pending[entry] > 0
+                && self.others_count() < self.config.cap()
+                && self.roomy_routes(entry).next().is_some()
+                && self.try_spawn(entry, draws)
+            {
+                self.pending[entry] -= 1;
+            }
+        }
+    }
+
+    /// The random draws of one spawn (route, aggressiveness, length, width), in [0, 1).
+    fn spawn_draws(&mut self) -> [f64; 4] {
+        [
+            self.rng.random(),
+            self.rng.random(),
+            self.rng.random(),
+            self.rng.random(),
+        ]
+    }
+
+    /// The routes of `entry` where the longest car fits before its yield line: on a shorter
+    /// approach (cut at a junction next to the ring) a car would appear already over its
+    /// line, on top of the cars entering there.
+    fn roomy_routes(&self, entry: usize) -> impl Iterator<Item = usize> + '_ {
+        let room = self
+            .config
+            .vehicle_length_m
+            .at(0.0)
+            .max(self.config.vehicle_length_m.at(1.0));
+        self.layout.routes_by_entry[entry]
             .iter()
             .copied()
-            .filter(roomy)
-            .collect();
-        let route_index =
-            routes[((route_draw * routes.len() as f64) as usize).min(routes.len() - 1)];
+            .filter(move |&r| self.layout.routes[r].yield_s >= room)
+    }
+
+    /// Route `route`'s weight among its entry's routes (per-entry flows).
+    fn route_weight(&self, route: usize) -> f64 {
+        self.route_weights
+            .get(route)
+            .copied()
+            .unwrap_or(1.0)
+            .max(0.0)
+    }
+
+    /// Spawns a vehicle on `entry` (a route of it, its driver and size from `draws`) if its
+    /// start is free; counts a blocked spawn otherwise. Whether it spawned.
+    fn try_spawn(&mut self, entry: usize, draws: [f64; 4]) -> bool {
+        let [route_draw, aggressiveness, length_draw, width_draw] = draws;
+        let routes: Vec<usize> = self.roomy_routes(entry).collect();
+        if routes.is_empty() {
+            return false;
+        }
+        let total: f64 = routes.iter().map(|&r| self.route_weight(r)).sum();
+        let route_index = if !self.config.per_entry_arrivals() || total <= 0.0 {
+            routes[((route_draw * routes.len() as f64) as usize).min(routes.len() - 1)]
+        } else {
+            // The routes by their weights (where the entry's vehicles go).
+            let mut left = route_draw * total;
+            *routes
+                .iter()
+                .find(|&&r| {
+                    left -= self.route_weight(r);
+                    left < 0.0
+                })
+                .unwrap_or(&routes[routes.len() - 1])
+        };
         let length = self.config.vehicle_length_m.at(length_draw);
         let width = self.config.vehicle_width_m.at(width_draw);
         let s = length / 2.0;
@@ -1309,7 +1697,7 @@ impl World {
         let touching = touching || in_the_way;
         if touching || ahead.is_some_and(|(gap, _)| gap < self.config.spawn_clearance_m) {
             self.stats.spawns_blocked += 1;
-            return;
+            return false;
         }
         let route = &self.layout.routes[route_index];
         let v0 = route.path.speed_at(s) * driver.speed_factor;
@@ -1323,6 +1711,7 @@ impl World {
         let vehicle = self.new_vehicle(route_index, s, speed, (length, width), driver);
         self.vehicles.push(vehicle);
         self.stats.spawned += 1;
+        true
     }
 
     /// Index of a vehicle whose footprint overlaps vehicle `i`'s, if any (lowest index).

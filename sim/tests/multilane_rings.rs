@@ -318,7 +318,7 @@ fn run_traffic(map: &Map, id: RoundaboutId, seconds: f64) -> Option<Figures> {
         7 + id.0 as u64,
     );
     let mut watch = Watch::new(&world);
-    let steps = (seconds / traffic.step_s) as usize;
+    let steps = (seconds / world.config().step_s) as usize;
     for _ in 0..steps {
         world.step(0.0);
         watch.look(map, &world);

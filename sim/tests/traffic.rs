@@ -159,7 +159,7 @@ fn gap_acceptance_waits_for_a_near_circulating_car() {
     let waiting_s = wr.yield_s - 2.5;
 
     // Empty ring: it commits within a second.
-    let mut world = World::new(Arc::clone(&layout), config, EgoConfig::default(), 1);
+    let mut world = World::new(Arc::clone(&layout), config.clone(), EgoConfig::default(), 1);
     let w = world.insert_vehicle(waiting, waiting_s, 0.0, 0.5, false);
     for _ in 0..10 {
         world.step(0.0);
@@ -299,7 +299,12 @@ fn the_ring_never_gridlocks() {
     let layout = montlake_layout();
     let config = high_traffic();
     for seed in 0..SEEDS {
-        let mut world = World::new(Arc::clone(&layout), config, EgoConfig::default(), seed);
+        let mut world = World::new(
+            Arc::clone(&layout),
+            config.clone(),
+            EgoConfig::default(),
+            seed,
+        );
         // id -> seconds stood still in the ring without a break
         let mut standing: BTreeMap<u32, f64> = BTreeMap::new();
         for step in 0..1800 {

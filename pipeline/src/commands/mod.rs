@@ -8,6 +8,7 @@ pub mod map;
 pub mod replay;
 pub mod run;
 pub mod segmenter;
+pub mod sim;
 
 use std::path::{Path, PathBuf};
 

@@ -399,6 +399,9 @@ pub struct InsertionState {
     pub speed_mps: f64,
     pub target_speed_mps: f64,
     pub aggressiveness: f64,
+    /// The least time a circulating vehicle needs to reach the ego's merge point
+    /// ([`World::merge_lag_s`]); None when none is coming.
+    pub merge_lag_s: Option<f64>,
 }
 
 /// How one episode went.
@@ -553,6 +556,7 @@ impl RoundaboutInsertion {
                 speed_mps: 0.0,
                 target_speed_mps: 0.0,
                 aggressiveness: self.aggressiveness,
+                merge_lag_s: None,
             };
         };
         let me = &world.vehicles()[ego];
@@ -586,6 +590,7 @@ impl RoundaboutInsertion {
             speed_mps: me.speed,
             target_speed_mps: self.target_speed(world, ego),
             aggressiveness: self.aggressiveness,
+            merge_lag_s: world.merge_lag_s(ego),
         }
     }
 
@@ -814,7 +819,7 @@ impl Env for RoundaboutInsertion {
         let world_seed: u64 = rng.random();
         let mut world = World::new(
             Arc::clone(&layout),
-            self.config.traffic,
+            self.config.traffic.clone(),
             self.config.ego,
             world_seed,
         );
@@ -918,6 +923,18 @@ impl Task for RoundaboutInsertion {
         Some(config.deciding_every(steps))
     }
 
+    fn in_world(
+        config: &InsertionConfig,
+        traffic: &crate::world::TrafficConfig,
+        layout: &crate::roundabout::LayoutConfig,
+    ) -> Option<InsertionConfig> {
+        Some(InsertionConfig {
+            traffic: traffic.clone(),
+            layout: *layout,
+            ..config.clone()
+        })
+    }
+
     fn on_roundabout(config: &InsertionConfig, id: u32) -> Option<InsertionConfig> {
         Some(InsertionConfig {
             roundabout: Some(id),
@@ -1005,6 +1022,20 @@ impl Task for RoundaboutInsertion {
             cut_in_steps: self.cut_in_steps,
             entry_lag_s: self.entry_lag_s,
         }
+    }
+
+    /// The study's baselines, and in a calibrated world the rule of its median driver's
+    /// critical gap.
+    fn setup_baselines(setup: &InsertionSetup) -> Vec<(String, PolicyFactory<Self>)> {
+        let mut all = Self::baselines();
+        if let Some(gap) = setup.config().traffic.drivers.critical_gap {
+            let baseline = Baseline::CriticalGap {
+                seconds: gap.median_s,
+            };
+            let make: PolicyFactory<Self> = Box::new(move || Box::new(InsertionPolicy(baseline)));
+            all.push((baseline.name(), make));
+        }
+        all
     }
 
     /// The Parma study's rules, always Permitted, random and always Not Permitted.
@@ -1158,7 +1189,7 @@ mod tests {
         // lane (past its own line, so it counts as entered), with or without a car about
         // to merge there.
         let permitted = |with_other: bool| {
-            let mut world = World::new(Arc::clone(&layout), config.traffic, config.ego, 7);
+            let mut world = World::new(Arc::clone(&layout), config.traffic.clone(), config.ego, 7);
             world.insert_ego(ego_route, merge_lane_start - 9.0, 4.0, 0.0);
             if with_other {
                 world.insert_vehicle(other_route, other.merge_s - 2.5, 2.0, 0.5, true);

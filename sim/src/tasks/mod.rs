@@ -126,6 +126,16 @@ pub trait Task: Env + Sized + 'static {
         None
     }
 
+    /// The task in another traffic world (`traffic` and `layout` replacing the config's, as a
+    /// calibration does); None when the task runs no traffic world.
+    fn in_world(
+        _config: &Self::Config,
+        _traffic: &crate::world::TrafficConfig,
+        _layout: &crate::roundabout::LayoutConfig,
+    ) -> Option<Self::Config> {
+        None
+    }
+
     /// One environment of a training run at `traffic`.
     fn training_env(setup: &Arc<Self::Setup>, traffic: TrafficLevel) -> Self;
 
@@ -169,6 +179,12 @@ pub trait Task: Env + Sized + 'static {
     /// The baselines every agent of the task is reported next to: one per constant action,
     /// then the task's rules, by name.
     fn baselines() -> Vec<(String, PolicyFactory<Self>)>;
+
+    /// The baselines on `setup`: [`Task::baselines`], and any the setup's world adds (a
+    /// calibrated world's critical-gap rule).
+    fn setup_baselines(_setup: &Self::Setup) -> Vec<(String, PolicyFactory<Self>)> {
+        Self::baselines()
+    }
 
     /// The current scene, for pictures and the rerun recording (None before a reset).
     fn scene(&self) -> Option<Scene<'_>>;

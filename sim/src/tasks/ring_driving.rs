@@ -611,7 +611,7 @@ impl Env for RingDriving {
         let s0 = s0.clamp(half, (route.path.length() - c.ego.length_m).max(half));
         let (lo, hi) = c.start_speed_fraction;
         let speed = route.path.speed_at(s0 + half) * (lo + (hi - lo) * speed_draw);
-        let mut world = World::new(Arc::clone(&layout), c.traffic, c.ego, world_seed);
+        let mut world = World::new(Arc::clone(&layout), c.traffic.clone(), c.ego, world_seed);
         world.warm_up(c.traffic.warm_up_s);
         world.insert_ego(route_index, s0, speed, 8.0);
         self.start_time_s = world.time_s();
@@ -675,6 +675,18 @@ impl Task for RingDriving {
 
     fn map(setup: &RingDrivingSetup) -> &Map {
         setup.map()
+    }
+
+    fn in_world(
+        config: &RingDrivingConfig,
+        traffic: &crate::world::TrafficConfig,
+        layout: &crate::roundabout::LayoutConfig,
+    ) -> Option<RingDrivingConfig> {
+        Some(RingDrivingConfig {
+            traffic: traffic.clone(),
+            layout: *layout,
+            ..config.clone()
+        })
     }
 
     fn on_roundabout(config: &RingDrivingConfig, id: u32) -> Option<RingDrivingConfig> {

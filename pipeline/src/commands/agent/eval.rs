@@ -114,6 +114,17 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
             )
         })?;
     }
+    if let Some(traffic) = &ctx.config.traffic {
+        // A calibration given with --config: the agent is judged in that world.
+        let layout = ctx.config.layout.unwrap_or_default();
+        if let Some(c) = T::in_world(&config, traffic, &layout) {
+            progress.note("in the traffic world of --config ([traffic], [layout])");
+            config = c;
+        }
+    }
+    if args.traffic.contains(&super::TrafficArg::Recorded) {
+        require_recorded(ctx)?;
+    }
     let setup = crate::tasks::setup::<T>(map.as_deref(), &config)?;
     let choice = ConditionChoice {
         traffic: args.traffic.iter().map(|&t| t.into()).collect(),
@@ -244,4 +255,16 @@ fn map_name(path: &Path) -> String {
     } else {
         stem.to_owned()
     }
+}
+
+/// `--traffic recorded` needs the recordings' flows: `[recorded]` of a calibration.
+pub(crate) fn require_recorded(ctx: &Context<'_>) -> Result<()> {
+    if ctx.config.recorded.is_none() {
+        return Err(CliError::new(
+            "--traffic recorded needs the recordings' flows, and the config has no [recorded] table",
+            "give the calibration `pipeline sim calibrate` wrote (--config FILE), on its map",
+        )
+        .into());
+    }
+    Ok(())
 }

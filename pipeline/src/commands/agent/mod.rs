@@ -55,6 +55,9 @@ pub enum TrafficArg {
     Low,
     Medium,
     High,
+    /// The recordings' own flows per entry (`[recorded]` of a calibration given with
+    /// --config, on the recordings' map).
+    Recorded,
 }
 
 impl From<TrafficArg> for TrafficLevel {
@@ -63,6 +66,7 @@ impl From<TrafficArg> for TrafficLevel {
             TrafficArg::Low => TrafficLevel::Low,
             TrafficArg::Medium => TrafficLevel::Medium,
             TrafficArg::High => TrafficLevel::High,
+            TrafficArg::Recorded => TrafficLevel::Recorded,
         }
     }
 }

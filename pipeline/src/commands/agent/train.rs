@@ -113,6 +113,9 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         .into());
     }
     let traffic = TrafficLevel::from(args.traffic);
+    if traffic == TrafficLevel::Recorded {
+        super::eval::require_recorded(ctx)?;
+    }
 
     if let Some(map) = &args.map {
         progress.step(&format!("loading {}", map.display()));

@@ -47,6 +47,7 @@ impl StageEnv<'_> {
         let agent = &self.profile.agent;
         if let Some(file) = &agent.config {
             config.agent = Config::load(Some(&self.ctx.config.resolve(file)))?.agent;
+            config.apply_world();
         }
         if let Some(steps) = agent.steps {
             config.agent.dqn.total_steps = steps;
