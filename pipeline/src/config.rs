@@ -227,4 +227,37 @@ mod tests {
         }
         Ok(())
     }
+
+    /// The main job's `pipeline.toml` names the committed calibration: every task that runs
+    /// the traffic world gets its traffic and layout, and its recorded flows.
+    #[test]
+    fn the_main_job_runs_the_calibrated_world() -> Result<(), String> {
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
+        let mut config = Config::load(Some(&file)).map_err(|e| format!("{e:#}"))?;
+        let traffic = config
+            .traffic
+            .clone()
+            .ok_or("pipeline.toml: no calibrated traffic")?;
+        let gap = traffic
+            .drivers
+            .critical_gap
+            .ok_or("the calibration has no critical gap")?;
+        assert!((1.0..10.0).contains(&gap.median_s), "{gap:?}");
+        assert!(traffic.capacity.is_some(), "no capacity model");
+        assert_eq!(config.agent.task.traffic.drivers, traffic.drivers);
+        assert_eq!(
+            config.agent.roundabout_driving.traffic.drivers,
+            traffic.drivers
+        );
+        assert_eq!(Some(config.agent.task.layout), config.layout);
+        assert!(
+            !config.agent.task.traffic.flows.is_empty(),
+            "no recorded flows"
+        );
+        // A profile's agent recipe replaces [agent]; the world is put back.
+        config.agent = crate::commands::agent::AgentConfig::default();
+        config.apply_world();
+        assert_eq!(config.agent.task.traffic.drivers, traffic.drivers);
+        Ok(())
+    }
 }

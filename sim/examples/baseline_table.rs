@@ -19,6 +19,10 @@ use sim::eval::{Condition, EvalOptions, evaluate_episodes, markdown_table, summa
 use sim::tasks::{InsertionConfig, InsertionSetup};
 use sim::world::TrafficLevel;
 
+#[path = "common/world.rs"]
+mod world;
+use world::world;
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut map_path = String::from("data/osm/montlake_roundabout.osm.pbf");
     let mut traffic: Vec<TrafficLevel> = Vec::new();
@@ -126,28 +130,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map(|(name, results)| serde_json::json!({"policy": name, "conditions": results}))
             .collect();
         std::fs::write(&path, serde_json::to_string_pretty(&value)?)?;
-    }
-    Ok(())
-}
-
-/// `[traffic]`, `[layout]` and `[recorded]` of a calibration file into `config`.
-fn world(path: &str, config: &mut InsertionConfig) -> Result<(), Box<dyn std::error::Error>> {
-    #[derive(serde::Deserialize)]
-    struct Recorded {
-        flows: Vec<sim::world::EntryFlow>,
-    }
-    #[derive(serde::Deserialize)]
-    struct Calibration {
-        traffic: sim::world::TrafficConfig,
-        layout: sim::roundabout::LayoutConfig,
-        recorded: Option<Recorded>,
-    }
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
-    let c: Calibration = toml::from_str(&text).map_err(|e| format!("{path}: {e}"))?;
-    config.traffic = c.traffic;
-    config.layout = c.layout;
-    if let Some(r) = c.recorded {
-        config.traffic.flows = r.flows;
     }
     Ok(())
 }

@@ -5,7 +5,8 @@
 //!     cargo run --release -p sim --example bench_insertion -- --steps 100000 --traffic high
 //!
 //! `--size N`, `--stack N`, `--layers a,b,...` and `--antialias` change the view (the keys
-//! of `[agent.task.observation]`), to time a training config's rendering.
+//! of `[agent.task.observation]`), to time a training config's rendering; `--world FILE` runs the
+//! calibrated world of a `pipeline sim calibrate` file.
 //!
 //! CPU time is the main thread's (`/proc/thread-self/schedstat`, Linux): the environment
 //! steps on one thread.
@@ -18,6 +19,9 @@ use rand_chacha::ChaCha8Rng;
 use sim::Env;
 use sim::tasks::{InsertionConfig, InsertionSetup, RoundaboutInsertion};
 use sim::world::TrafficLevel;
+
+#[path = "common/world.rs"]
+mod world;
 
 /// CPU time of the calling thread, seconds.
 fn thread_cpu_s() -> Result<f64, String> {
@@ -39,11 +43,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut seed: u64 = 0;
     let mut arrivals: Option<f64> = None;
     let mut view = sim::render::BevConfig::default();
+    let mut world_file: Option<String> = None;
     let mut args = std::env::args().skip(1);
     while let Some(flag) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{flag} needs a value"));
         match flag.as_str() {
             "--map" => map_path = value()?,
+            "--world" => world_file = Some(value()?),
             "--steps" => steps = value()?.parse()?,
             "--traffic" => traffic = value()?.parse()?,
             "--policy" => policy = value()?,
@@ -67,6 +73,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let map = maps::import_file(std::path::Path::new(&map_path), &Default::default())
         .map_err(|e| format!("{map_path}: {e}"))?;
     let mut config = InsertionConfig::default();
+    if let Some(file) = &world_file {
+        world::world(file, &mut config)?;
+    }
     config.traffic.level = traffic;
     config.observation = view;
     if let Some(a) = arrivals {

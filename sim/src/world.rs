@@ -32,6 +32,12 @@ use crate::roundabout::{RingRoute, RoundaboutLayout};
 use crate::scene::{Actor, ActorKind, OrientedBox};
 use crate::spatial::UniformGrid;
 
+/// See [`World::standing_mps`], m/s.
+const CROSSING_MPS: f64 = f64::INFINITY;
+/// Drivers with a measured critical gap never take a gap closing sooner than this after
+/// they would have cleared the merge point (or the zone where cars leaving the ring cross
+/// their entry), s.
+const CLEARING_MARGIN_S: f64 = 0.5;
 /// Drivers with a measured critical gap brake for their yield line at this share of their
 /// comfortable deceleration, reaching the speed that allows within this time, s.
 const ROLLING_DECEL_SHARE: f64 = 0.7;
@@ -458,11 +464,12 @@ impl Driver {
 
     /// The least time a circulating vehicle must be away from the merge point for this
     /// driver to enter, given the time it needs to clear that point and to reach its yield
-    /// line, s: its critical gap left when it reaches the line (a driver with a measured
-    /// critical gap), or the time to clear the merge point plus its margin.
+    /// line, s: its critical gap left when it reaches the line but never less than the time
+    /// to clear the merge point and [`CLEARING_MARGIN_S`] (a driver with a measured critical
+    /// gap), or the time to clear the merge point plus its margin.
     pub fn needed_lag_s(&self, clearing_s: f64, to_line_s: f64) -> f64 {
         match self.critical_lag_s {
-            Some(gap) => to_line_s + gap,
+            Some(gap) => (to_line_s + gap).max(clearing_s + CLEARING_MARGIN_S),
             None => clearing_s + self.critical_gap_s,
         }
     }
@@ -719,6 +726,24 @@ impl World {
 
     pub fn route(&self, vehicle: &Vehicle) -> &RingRoute {
         &self.layout.routes[vehicle.route]
+    }
+
+    /// Whether the world takes the care multi-lane rings need: a multi-lane ring, or drivers
+    /// with measured critical gaps (who commit from farther off).
+    fn careful(&self) -> bool {
+        self.multi_lane || self.config.drivers.critical_gap.is_some()
+    }
+
+    /// Below this speed a car on another's path is in its way whatever its heading (on
+    /// careful worlds): [`STANDING_MPS`] on multi-lane rings, [`CROSSING_MPS`] (any speed)
+    /// among drivers with measured critical gaps: a car entering across an exit is braked
+    /// for (judging gaps from farther off, they misjudge more often).
+    fn standing_mps(&self) -> f64 {
+        if self.multi_lane {
+            STANDING_MPS
+        } else {
+            CROSSING_MPS
+        }
     }
 
     /// Index of the ego in [`World::vehicles`].
@@ -1051,10 +1076,11 @@ impl World {
                 other.length + me.width,
                 other.width + me.width,
             );
-            // On a multi-lane ring a car standing on the path is in the way at any angle:
-            // imported arms whose entry and exit lanes meet short of the ring put cars
-            // waiting to enter on the way of cars leaving.
-            let standing = self.multi_lane && other.speed < STANDING_MPS;
+            // On a multi-lane ring (or among drivers with measured critical gaps) a car
+            // standing on the path is in the way at any angle: imported arms whose entry and
+            // exit lanes meet short of the ring put cars waiting to enter on the way of cars
+            // leaving.
+            let standing = self.careful() && other.speed < self.standing_mps();
             let hit = ahead.iter().find_map(|&(d, p, heading)| {
                 (zone.contains(p)
                     && (standing
@@ -1126,7 +1152,7 @@ impl World {
                     && let Some(their_d) = self
                         .distance_to_piece(j, key)
                         .filter(|&d| d > 0.0 && d < start)
-                    && (!(self.multi_lane || self.config.drivers.critical_gap.is_some())
+                    && (!self.careful()
                         || self.vehicles[i].id < other.id
                         || !self.merges_ahead_of(i, j))
                 {
@@ -1235,7 +1261,7 @@ impl World {
                 }
                 // Stopped for this very car, standing in its way: it waits for this car to
                 // go (see `obstacle_on_path`).
-                if self.multi_lane
+                if self.careful()
                     && o.speed < STOPPED_MPS
                     && self
                         .obstacle_on_path(j, OTHERS_OBSTACLE_HORIZON_M)
@@ -1251,9 +1277,17 @@ impl World {
                     .iter()
                     .find(|c| c.route == o.route)
                     .is_none_or(|c| {
+                        // Drivers judging from far off expect a car leaving the ring to speed
+                        // up to its desired speed at the zone.
+                        let speed = if v.driver.critical_lag_s.is_some() {
+                            let path = &self.layout.routes[o.route].path;
+                            o.speed.max(path.speed_at(c.from_s) * o.driver.speed_factor)
+                        } else {
+                            o.speed
+                        };
                         o.s > c.to_s
                             || (o.s < c.from_s
-                                && (c.from_s - o.s) / o.speed.max(2.0)
+                                && (c.from_s - o.s) / speed.max(2.0)
                                     > v.driver.needed_lag_s(my_time, to_line_s))
                     });
                 // Along its route to the first of the lanes this entry gives way to (the merge

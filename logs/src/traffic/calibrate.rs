@@ -98,6 +98,15 @@ pub fn calibrate(
     let base_layout = LayoutConfig::default();
     let minutes = measured.iter().map(|m| m.duration_s).sum::<f64>() / 60.0;
 
+    // Gap acceptance.
+    let gaps = gap_observations(measured);
+    if gaps.len() < MIN_GAP_DRIVERS {
+        return Err(format!(
+            "only {} entering drivers with a measured gap (at least {MIN_GAP_DRIVERS} needed): \
+             give longer or busier recordings",
+            gaps.len()
+        ));
+    }
     // Speeds.
     let circulating: Vec<(f64, bool)> = measured
         .iter()
@@ -148,25 +157,6 @@ pub fn calibrate(
         seed,
     )?;
 
-    // Gap acceptance.
-    let gaps: Vec<fit::GapObservation> = measured
-        .iter()
-        .flat_map(|m| &m.entering)
-        .filter_map(|e| {
-            Some(fit::GapObservation {
-                accepted_s: e.accepted_s?,
-                max_rejected_s: e.rejected_s.iter().copied().reduce(f64::max),
-            })
-        })
-        .filter(|g| g.accepted_s > 0.0)
-        .collect();
-    if gaps.len() < MIN_GAP_DRIVERS {
-        return Err(format!(
-            "only {} entering drivers with a measured gap (at least {MIN_GAP_DRIVERS} needed): \
-             give longer or busier recordings",
-            gaps.len()
-        ));
-    }
     let critical_gap = fit::fit_critical_gap(&gaps, MIN_GAP_DRIVERS, BOOTSTRAP, seed)?;
     let follow: Vec<f64> = measured
         .iter()
@@ -274,6 +264,21 @@ pub fn calibrate(
             refinement: None,
         },
     })
+}
+
+/// Each entering driver's accepted gap and largest rejected gap, over every recording.
+fn gap_observations(measured: &[Measurements]) -> Vec<fit::GapObservation> {
+    measured
+        .iter()
+        .flat_map(|m| &m.entering)
+        .filter_map(|e| {
+            Some(fit::GapObservation {
+                accepted_s: e.accepted_s?,
+                max_rejected_s: e.rejected_s.iter().copied().reduce(f64::max),
+            })
+        })
+        .filter(|g| g.accepted_s > 0.0)
+        .collect()
 }
 
 /// Whether any IDM parameter ended on the bounds [`fit::fit_idm`] searches within.
@@ -430,6 +435,9 @@ pub fn to_toml(c: &Calibration, source: &str, recordings: &[String]) -> String {
 
 /// Simulated minutes are run per recording in [`refine`], after this warm-up, s.
 const REFINE_WARM_UP_S: f64 = 120.0;
+/// [`refine`] simulates this many times as long as the recordings (less sampling noise on
+/// the world's side).
+const REFINE_LENGTH: f64 = 2.0;
 /// Halvings of each search interval in [`refine`].
 const REFINE_STEPS: usize = 7;
 
@@ -453,7 +461,8 @@ pub struct Refinement {
 /// not reproduce as measured (indirect inference, one parameter at a time by bisection): the
 /// lateral acceleration against the median circulating speed, then the median critical gap
 /// against the Troutbeck estimate from the world's own traffic. Runs the world on the
-/// recordings' roundabout with their flows, one run as long as each recording.
+/// recordings' roundabout with their flows, one run per recording, [`REFINE_LENGTH`] times as
+/// long.
 #[allow(clippy::too_many_arguments)]
 pub fn refine(
     calibration: &mut Calibration,
@@ -476,7 +485,7 @@ pub fn refine(
                         geometry.roundabout,
                         traffic,
                         layout,
-                        m.duration_s,
+                        m.duration_s * REFINE_LENGTH,
                         REFINE_WARM_UP_S,
                         sim::seed::derive_seed(seed, 0x5245_4649, k as u64),
                     )?;
@@ -497,18 +506,7 @@ pub fn refine(
         )
     };
     let troutbeck = |ms: &[Measurements]| -> Result<f64, String> {
-        let gaps: Vec<fit::GapObservation> = ms
-            .iter()
-            .flat_map(|m| &m.entering)
-            .filter_map(|e| {
-                Some(fit::GapObservation {
-                    accepted_s: e.accepted_s?,
-                    max_rejected_s: e.rejected_s.iter().copied().reduce(f64::max),
-                })
-            })
-            .filter(|g| g.accepted_s > 0.0)
-            .collect();
-        Ok(fit::fit_critical_gap(&gaps, MIN_GAP_DRIVERS, 0, seed)?.median_s)
+        Ok(fit::fit_critical_gap(&gap_observations(ms), MIN_GAP_DRIVERS, 0, seed)?.median_s)
     };
     let real_speed = circulating(measured);
     let real_gap = calibration.report.critical_gap.median_s;

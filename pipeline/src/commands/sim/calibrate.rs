@@ -2,7 +2,6 @@
 
 use anyhow::Result;
 use logs::traffic::calibrate::{calibrate, to_toml};
-use logs::traffic::simulate::recorded_flows;
 
 use super::{CalibrateArgs, measure_recordings};
 use crate::commands::Context;
@@ -15,14 +14,7 @@ pub fn run(ctx: &Context<'_>, args: &CalibrateArgs) -> Result<()> {
     let mut progress = ctx.ui.progress("sim calibrate");
     progress.step("fitting");
     let layout = ctx.config.layout.unwrap_or_default();
-    let flows = recorded_flows(
-        &measured.map,
-        measured.geometry.roundabout,
-        &layout,
-        &measured.geometry,
-        &measured.measured,
-    )
-    .map_err(|e| CliError::file(&r.map, e, "give the map the recordings were made on"))?;
+    let flows = measured.flows(&layout, &r.map)?;
     let calibration = calibrate(
         &measured.measured,
         measured.geometry.roundabout.0,

@@ -118,6 +118,24 @@ pub(crate) struct Measured {
     pub measured: Vec<Measurements>,
 }
 
+impl Measured {
+    /// The recordings' flows on the entry lanes of their roundabout's layout.
+    pub fn flows(
+        &self,
+        layout: &sim::roundabout::LayoutConfig,
+        map_path: &Path,
+    ) -> Result<Vec<sim::world::EntryFlow>> {
+        logs::traffic::simulate::recorded_flows(
+            &self.map,
+            self.geometry.roundabout,
+            layout,
+            &self.geometry,
+            &self.measured,
+        )
+        .map_err(|e| CliError::file(map_path, e, "give the map the recordings were made on").into())
+    }
+}
+
 fn measure_recordings(ctx: &Context<'_>, args: &Recordings, what: &str) -> Result<Measured> {
     let mut progress = ctx.ui.progress(what);
     progress.step(&format!("reading {}", args.map.display()));

@@ -4,7 +4,7 @@
 use anyhow::Result;
 use logs::traffic::measure::{Measurements, measure};
 use logs::traffic::realism::{METRICS, RealismReport, compare, markdown, samples};
-use logs::traffic::simulate::{recorded_flows, simulate};
+use logs::traffic::simulate::simulate;
 use rayon::prelude::*;
 use sim::seed::derive_seed;
 
@@ -40,14 +40,7 @@ pub fn run(ctx: &Context<'_>, args: &RealismArgs) -> Result<()> {
     let mut traffic = ctx.config.traffic.clone().unwrap_or_default();
     let layout = ctx.config.layout.unwrap_or_default();
     traffic.level = sim::world::TrafficLevel::Recorded;
-    traffic.flows = recorded_flows(
-        &measured.map,
-        measured.geometry.roundabout,
-        &layout,
-        &measured.geometry,
-        &measured.measured,
-    )
-    .map_err(|e| CliError::file(&r.map, e, "give the map the recordings were made on"))?;
+    traffic.flows = measured.flows(&layout, &r.map)?;
     // One run per recording, as long as it (longer when --minutes asks for more).
     let recorded_s: f64 = measured.measured.iter().map(|m| m.duration_s).sum();
     let scale = args

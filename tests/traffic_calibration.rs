@@ -1,0 +1,187 @@
+//! `pipeline sim calibrate` and `sim realism` on real INTERACTION recordings of FT, and
+//! the inputs they refuse.
+
+#![allow(clippy::print_stdout, clippy::unwrap_used)]
+
+mod common;
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use common::{SMALL_OSM, assert_refused, assert_success, pipeline, read_json, shared_data, stderr};
+
+/// The INTERACTION folder (None, with a notice, without ../shared/data).
+fn interaction() -> Option<PathBuf> {
+    let Some(data) = shared_data() else {
+        println!(
+            "skipped: {}: ../shared/data is absent",
+            std::thread::current().name().unwrap_or("-")
+        );
+        return None;
+    };
+    Some(data.join("trajectories/interaction"))
+}
+
+/// Converts track file `tracks` with `map` into `out`.
+fn convert(tracks: &Path, map: &Path, out: &Path) {
+    let done = pipeline()
+        .args(["--rerun", "off", "logs", "convert"])
+        .arg(tracks)
+        .arg("--map")
+        .arg(map)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert_success(&done, "logs convert");
+}
+
+fn ft_tracks(base: &Path, n: u32) -> PathBuf {
+    base.join(format!(
+        "recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_{n:03}.csv.gz"
+    ))
+}
+
+#[test]
+fn calibration_feeds_the_realism_report() {
+    let Some(base) = interaction() else { return };
+    let map = base.join("maps/DR_USA_Roundabout_FT.osm");
+    let tmp = tempfile::tempdir().unwrap();
+    let logs: Vec<PathBuf> = (0..3)
+        .map(|n| {
+            let log = tmp.path().join(format!("ft_{n:03}.mcap"));
+            convert(&ft_tracks(&base, n), &map, &log);
+            log
+        })
+        .collect();
+    let calib = tmp.path().join("calib.toml");
+    let out = pipeline()
+        .args(["--rerun", "off", "sim", "calibrate", "--no-refine", "--map"])
+        .arg(&map)
+        .args(["--log"])
+        .arg(&logs[0])
+        .args(["--log"])
+        .arg(&logs[1])
+        .arg("--out")
+        .arg(&calib)
+        .output()
+        .unwrap();
+    assert_success(&out, "sim calibrate");
+    let fits = read_json(&tmp.path().join("calib.json"));
+    let median = fits["critical_gap"]["median_s"].as_f64().unwrap();
+    let (lo, hi) = (
+        fits["critical_gap"]["median_ci95_s"][0].as_f64().unwrap(),
+        fits["critical_gap"]["median_ci95_s"][1].as_f64().unwrap(),
+    );
+    assert!(
+        (2.0..10.0).contains(&median) && lo <= median && median <= hi,
+        "{fits}"
+    );
+    assert!(
+        fits["critical_gap"]["drivers"].as_u64().unwrap() >= 30,
+        "{fits}"
+    );
+    assert_eq!(
+        fits["flows"].as_array().unwrap().len(),
+        7,
+        "FT has seven entries"
+    );
+    // The calibration is a --config file; realism on a third recording.
+    let realism = |out: &Path| {
+        pipeline()
+            .args(["--rerun", "off", "--config"])
+            .arg(&calib)
+            .args(["sim", "realism", "--map"])
+            .arg(&map)
+            .arg("--log")
+            .arg(&logs[2])
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let report = tmp.path().join("realism");
+    assert_success(&realism(&report), "sim realism");
+    let json = read_json(&report.join("realism.json"));
+    let metrics = json["metrics"].as_object().unwrap();
+    assert_eq!(metrics.len(), 8, "{json}");
+    for (name, m) in metrics {
+        let ks = m["ks"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&ks), "{name}: {m}");
+        assert!(m["real"]["n"].as_u64().unwrap() > 0, "{name}: {m}");
+        assert!(m["sim"]["n"].as_u64().unwrap() > 0, "{name}: {m}");
+        assert!(report.join(format!("{name}.png")).is_file(), "{name}.png");
+    }
+    let md = std::fs::read_to_string(report.join("realism.md")).unwrap();
+    assert!(md.contains("| accepted_gap"), "{md}");
+    // Same seed and inputs, same report.
+    let again = tmp.path().join("realism_again");
+    assert_success(&realism(&again), "sim realism again");
+    assert_eq!(
+        std::fs::read(report.join("realism.json")).unwrap(),
+        std::fs::read(again.join("realism.json")).unwrap()
+    );
+}
+
+#[test]
+fn calibration_refuses_what_it_cannot_fit() {
+    let Some(base) = interaction() else { return };
+    let ft = base.join("maps/DR_USA_Roundabout_FT.osm");
+    let ep = base.join("maps/DR_USA_Roundabout_EP.osm");
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("ft_000.mcap");
+    convert(&ft_tracks(&base, 0), &ft, &log);
+    let calibrate = |map: &Path, log: &Path, out: &Path| {
+        pipeline()
+            .args(["--rerun", "off", "sim", "calibrate", "--no-refine", "--map"])
+            .arg(map)
+            .arg("--log")
+            .arg(log)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    // A recording of another roundabout.
+    let out_path = tmp.path().join("on_ep.toml");
+    let out = calibrate(&ep, &log, &out_path);
+    assert_refused(&out, "do not drive on the map", &out_path);
+    assert!(stderr(&out).contains("ft_000.mcap"), "{}", stderr(&out));
+    // A map without a roundabout.
+    let small = tmp.path().join("cross.osm");
+    std::fs::write(&small, SMALL_OSM).unwrap();
+    let out_path = tmp.path().join("cross.toml");
+    let out = calibrate(&small, &log, &out_path);
+    assert_refused(&out, "cross.osm: has no roundabout", &out_path);
+    // Too few gaps: the first 40 seconds of a recording.
+    let text = {
+        let mut gz =
+            flate2::read::GzDecoder::new(std::fs::File::open(ft_tracks(&base, 0)).unwrap());
+        let mut s = String::new();
+        std::io::Read::read_to_string(&mut gz, &mut s).unwrap();
+        s
+    };
+    let short = tmp.path().join("vehicle_tracks_short.csv");
+    let mut f = std::fs::File::create(&short).unwrap();
+    for (k, line) in text.lines().enumerate() {
+        let keep = k == 0
+            || line
+                .split(',')
+                .nth(2)
+                .and_then(|t| t.parse::<u64>().ok())
+                .is_some_and(|ms| ms <= 40_000);
+        if keep {
+            writeln!(f, "{line}").unwrap();
+        }
+    }
+    drop(f);
+    let short_log = tmp.path().join("short.mcap");
+    convert(&short, &ft, &short_log);
+    let out_path = tmp.path().join("short.toml");
+    let out = calibrate(&ft, &short_log, &out_path);
+    assert_refused(
+        &out,
+        "entering drivers with a measured gap (at least 30 needed)",
+        &out_path,
+    );
+}
