@@ -168,11 +168,22 @@ fn measure_recordings(ctx: &Context<'_>, args: &Recordings, what: &str) -> Resul
         }
         None => map.roundabouts.keys().copied().collect(),
     };
-    let mut geometries: Vec<RingGeometry> = candidates
+    // Without --roundabout, rings that cannot be measured (no yield line) are left out; the
+    // error names the first problem when none can.
+    let found: Vec<Result<RingGeometry, String>> = candidates
         .iter()
         .map(|&id| RingGeometry::new(&map, id))
-        .collect::<Result<_, _>>()
-        .map_err(|e| CliError::file(&args.map, e, "give a map whose roundabout has yield lines"))?;
+        .collect();
+    let first_problem = found.iter().find_map(|g| g.as_ref().err().cloned());
+    let mut geometries: Vec<RingGeometry> = found.into_iter().filter_map(Result::ok).collect();
+    if geometries.is_empty() {
+        return Err(CliError::file(
+            &args.map,
+            first_problem.unwrap_or_else(|| "has no roundabout to measure".into()),
+            "give a map whose roundabout has yield lines",
+        )
+        .into());
+    }
     progress.counted("measuring", args.logs.len() as u64, "recordings");
     // Per recording, per candidate roundabout.
     let mut all: Vec<Vec<Measurements>> = Vec::new();
