@@ -184,4 +184,25 @@ fn calibration_refuses_what_it_cannot_fit() {
         "entering drivers with a measured gap (at least 30 needed)",
         &out_path,
     );
+
+    // The committed calibration's recorded flows belong to FT: another map is refused.
+    let calibration =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/traffic_interaction_ft.toml");
+    let montlake =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/osm/montlake_roundabout.osm.pbf");
+    let agent = tmp.path().join("agent");
+    let out = pipeline()
+        .args(["--rerun", "off", "--config"])
+        .arg(&calibration)
+        .args(["agent", "train", "--traffic", "recorded", "--map"])
+        .arg(&montlake)
+        .arg("--out")
+        .arg(&agent)
+        .output()
+        .unwrap();
+    assert_refused(
+        &out,
+        "the recorded flows of --config do not fit this map",
+        &agent,
+    );
 }

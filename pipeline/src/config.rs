@@ -129,14 +129,22 @@ impl Config {
         Ok(config)
     }
 
-    /// Puts `[traffic]` and `[layout]` (when given) into every task's settings that runs the
-    /// traffic world.
-    pub fn apply_world(&mut self) {
-        if let Some(traffic) = &self.traffic {
-            self.agent.task.traffic = traffic.clone();
-            self.agent.roundabout_driving.traffic = traffic.clone();
-        }
+    /// `[traffic]` with the recorded flows of `[recorded]`, when the config gives a world.
+    pub fn world_traffic(&self) -> Option<sim::world::TrafficConfig> {
+        let mut traffic = self.traffic.clone()?;
         if let Some(recorded) = &self.recorded {
+            traffic.flows = recorded.flows.clone();
+        }
+        Some(traffic)
+    }
+
+    /// Puts `[traffic]` (with `[recorded]`'s flows) and `[layout]` (when given) into every
+    /// task's settings that runs the traffic world.
+    pub fn apply_world(&mut self) {
+        if let Some(traffic) = self.world_traffic() {
+            self.agent.task.traffic = traffic.clone();
+            self.agent.roundabout_driving.traffic = traffic;
+        } else if let Some(recorded) = &self.recorded {
             self.agent.task.traffic.flows = recorded.flows.clone();
             self.agent.roundabout_driving.traffic.flows = recorded.flows.clone();
         }

@@ -114,16 +114,16 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
             )
         })?;
     }
-    if let Some(traffic) = &ctx.config.traffic {
+    if let Some(traffic) = ctx.config.world_traffic() {
         // A calibration given with --config: the agent is judged in that world.
         let layout = ctx.config.layout.unwrap_or_default();
-        if let Some(c) = T::in_world(&config, traffic, &layout) {
+        if let Some(c) = T::in_world(&config, &traffic, &layout) {
             progress.note("in the traffic world of --config ([traffic], [layout])");
             config = c;
         }
     }
     if args.traffic.contains(&super::TrafficArg::Recorded) {
-        require_recorded(ctx)?;
+        require_recorded(ctx, map.as_deref())?;
     }
     let setup = crate::tasks::setup::<T>(map.as_deref(), &config)?;
     let choice = ConditionChoice {
@@ -257,14 +257,36 @@ fn map_name(path: &Path) -> String {
     }
 }
 
-/// `--traffic recorded` needs the recordings' flows: `[recorded]` of a calibration.
-pub(crate) fn require_recorded(ctx: &Context<'_>) -> Result<()> {
-    if ctx.config.recorded.is_none() {
+/// `--traffic recorded` needs the recordings' flows (`[recorded]` of a calibration), on the
+/// entries of the map they were recorded on (`map`, when the task runs on one).
+pub(crate) fn require_recorded(ctx: &Context<'_>, map: Option<&std::path::Path>) -> Result<()> {
+    let Some(recorded) = &ctx.config.recorded else {
         return Err(CliError::new(
             "--traffic recorded needs the recordings' flows, and the config has no [recorded] table",
             "give the calibration `pipeline sim calibrate` wrote (--config FILE), on its map",
         )
         .into());
-    }
+    };
+    let Some(path) = map else { return Ok(()) };
+    let loaded = crate::inputs::load_or_import_map(path)?;
+    let layout = ctx.config.layout.unwrap_or_default();
+    let traffic = sim::world::TrafficConfig {
+        flows: recorded.flows.clone(),
+        ..Default::default()
+    };
+    sim::roundabout::RoundaboutLayout::new(
+        &loaded,
+        maps::RoundaboutId(recorded.roundabout),
+        &layout,
+    )
+    .map_err(|e| e.to_string())
+    .and_then(|l| traffic.check_flows(&l))
+    .map_err(|e| {
+        CliError::file(
+            path,
+            format!("the recorded flows of --config do not fit this map: {e}"),
+            "--traffic recorded runs on the map the calibration's recordings were made on",
+        )
+    })?;
     Ok(())
 }

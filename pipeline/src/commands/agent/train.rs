@@ -114,7 +114,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     }
     let traffic = TrafficLevel::from(args.traffic);
     if traffic == TrafficLevel::Recorded {
-        super::eval::require_recorded(ctx)?;
+        super::eval::require_recorded(ctx, args.map.as_deref())?;
     }
 
     if let Some(map) = &args.map {
