@@ -81,7 +81,7 @@ fn recordings(
                 run.stats.collisions,
                 run.stats.spawned
             );
-            measure(map, geometry, &run.frames)
+            measure(geometry, &run.frames)
         })
         .collect()
 }

@@ -680,8 +680,8 @@ impl World {
             .collect();
         World {
             route_weights,
+            pending: vec![0; flow_rates.len()],
             flow_rates,
-            pending: Vec::new(),
             grid: UniformGrid::new(region, 8.0),
             multi_lane: layout.ring_lane_ranks.values().any(|r| *r > 0),
             layout,
@@ -1617,9 +1617,6 @@ impl World {
     /// that cannot enter its approach yet waits (off the map) and spawns at the first step
     /// its start is free, so that the entry's flow is kept whatever the queue.
     fn spawn_flows(&mut self) {
-        if self.pending.len() != self.flow_rates.len() {
-            self.pending = vec![0; self.flow_rates.len()];
-        }
         for entry in 0..self.flow_rates.len() {
             let p = (self.flow_rates[entry] / 3600.0 * self.config.step_s).clamp(0.0, 1.0);
             let arrive = self.rng.random::<f64>() < p;

@@ -191,16 +191,6 @@ pub fn calibrate(
         }
     };
 
-    let mut per_line = vec![0.0; measured.first().map_or(0, |m| m.entries_crossed.len())];
-    let seconds = minutes * 60.0;
-    for m in measured {
-        for (k, c) in m.entries_crossed.iter().enumerate() {
-            if let Some(slot) = per_line.get_mut(k) {
-                *slot += f64::from(*c) / seconds.max(1e-9) * 3600.0;
-            }
-        }
-    }
-
     // The uncalibrated world's spread across aggressiveness, round the fitted middle.
     let d = base.drivers;
     let around = |span: Span, middle: f64| {
@@ -259,7 +249,7 @@ pub fn calibrate(
             follow_up_headway: follow_up,
             vehicle_length_m: length,
             vehicle_width_m: width,
-            entry_flows_vph: per_line,
+            entry_flows_vph: super::measure::entry_flows_vph(measured),
             flows,
             refinement: None,
         },
@@ -489,7 +479,7 @@ pub fn refine(
                         REFINE_WARM_UP_S,
                         sim::seed::derive_seed(seed, 0x5245_4649, k as u64),
                     )?;
-                    Ok(super::measure::measure(map, geometry, &s.frames))
+                    Ok(super::measure::measure(geometry, &s.frames))
                 })
                 .collect()
         };

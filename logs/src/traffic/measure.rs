@@ -31,7 +31,7 @@ use maps::{Map, RoundaboutId};
 use serde::{Deserialize, Serialize};
 
 use crate::decisions::crosses;
-use crate::project::LogFrame;
+use crate::project::{LogFrame, central_speeds};
 
 /// A driver is at its yield line once its centre is this far from it or nearer, m.
 pub const PRESENCE_M: f64 = 10.0;
@@ -163,8 +163,9 @@ struct Sample {
     angle: f64,
 }
 
-/// A track as read: length, width, and (time, position, heading) per frame.
-type RawTrack = (f64, f64, Vec<(f64, Point, f64)>);
+/// A track as read: length, width, and (time in ns from the first frame, position, heading)
+/// per frame.
+type RawTrack = (f64, f64, Vec<(u64, Point, f64)>);
 
 /// One vehicle's track.
 #[derive(Debug, Clone)]
@@ -234,21 +235,59 @@ pub struct Measurements {
     pub entries_crossed: Vec<u32>,
     /// Per entry and minute of the recording: vehicles crossing its line.
     pub per_minute: Vec<Vec<u32>>,
-    /// Samples of road users within the ring's surroundings, and of them how many lay on
-    /// the map's lanes: a check that the frames belong to the map.
-    pub positions: usize,
-    pub positions_on_lanes: usize,
 }
 
-/// Measures the traffic of `frames` at the roundabout of `geometry` on `map`.
-pub fn measure(map: &Map, geometry: &RingGeometry, frames: &[LogFrame]) -> Measurements {
+/// The share of the road users' positions in `frames` (every tenth frame) that lie within
+/// 4 m of a car lane's centre line of `map`: a check that the frames belong to the map (0
+/// when they hold no car).
+pub fn share_on_lanes(map: &Map, frames: &[LogFrame]) -> f64 {
+    let index = maps::spatial::LaneIndex::car_lanes(map);
+    let (mut all, mut near) = (0usize, 0usize);
+    for f in frames.iter().step_by(10) {
+        for a in f.actors.iter().filter(|a| a.kind == sim::ActorKind::Car) {
+            all += 1;
+            if index
+                .nearest(map, a.position)
+                .is_some_and(|n| n.distance_m <= 4.0)
+            {
+                near += 1;
+            }
+        }
+    }
+    near as f64 / all.max(1) as f64
+}
+
+/// Vehicles per hour crossing each entry's line, pooled over `measured`.
+pub fn entry_flows_vph(measured: &[Measurements]) -> Vec<f64> {
+    let seconds: f64 = measured.iter().map(|m| m.duration_s).sum();
+    let n = measured
+        .iter()
+        .map(|m| m.entries_crossed.len())
+        .max()
+        .unwrap_or(0);
+    (0..n)
+        .map(|k| {
+            let crossed: u32 = measured
+                .iter()
+                .filter_map(|m| m.entries_crossed.get(k))
+                .sum();
+            if seconds > 0.0 {
+                f64::from(crossed) / seconds * 3600.0
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// Measures the traffic of `frames` at the roundabout of `geometry`.
+pub fn measure(geometry: &RingGeometry, frames: &[LogFrame]) -> Measurements {
     let tracks = tracks(geometry, frames);
     let (Some(first), Some(last)) = (frames.first(), frames.last()) else {
         return Measurements::default();
     };
     let t0 = first.time_ns;
     let duration_s = (last.time_ns.saturating_sub(t0)) as f64 * 1e-9;
-    let (positions, positions_on_lanes) = on_lanes(map, &tracks);
     let n_entries = geometry.entries.len();
 
     // Entries: the first crossing of a yield line towards the centre per track.
@@ -364,19 +403,19 @@ pub fn measure(map: &Map, geometry: &RingGeometry, frames: &[LogFrame]) -> Measu
         }
     }
 
+    let leaders = leaders_by_time(geometry, &tracks);
     Measurements {
         duration_s,
-        circulating: circulating_speeds(geometry, &tracks),
-        following: following(geometry, &tracks)
-            .into_iter()
+        circulating: circulating_speeds(&tracks, &leaders),
+        following: leaders
+            .values()
+            .copied()
             .chain(approach_following(&tracks, &entering))
             .collect(),
         sizes: tracks.iter().map(|t| (t.length_m, t.width_m)).collect(),
         entering,
         entries_crossed,
         per_minute,
-        positions,
-        positions_on_lanes,
     }
 }
 
@@ -389,7 +428,7 @@ fn tracks(geometry: &RingGeometry, frames: &[LogFrame]) -> Vec<Track> {
     let t0 = first.time_ns;
     let mut raw: BTreeMap<u32, RawTrack> = BTreeMap::new();
     for f in frames {
-        let t = (f.time_ns.saturating_sub(t0)) as f64 * 1e-9;
+        let t = f.time_ns.saturating_sub(t0);
         for a in &f.actors {
             if !matches!(a.kind, sim::ActorKind::Car) {
                 continue;
@@ -404,32 +443,23 @@ fn tracks(geometry: &RingGeometry, frames: &[LogFrame]) -> Vec<Track> {
         .filter(|(_, (_, _, s))| s.len() >= 3)
         .map(|(id, (length_m, width_m, points))| {
             let n = points.len();
-            let speed: Vec<f64> = (0..n)
-                .map(|j| {
-                    let (a, b) = (j.saturating_sub(1), (j + 1).min(n - 1));
-                    let dt = points[b].0 - points[a].0;
-                    if dt > 0.0 {
-                        points[a].1.distance(points[b].1) / dt
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
+            let speed = central_speeds(&points.iter().map(|p| (p.0, p.1)).collect::<Vec<_>>());
+            let seconds = |j: usize| points[j].0 as f64 * 1e-9;
             let samples = (0..n)
                 .map(|j| {
                     let (a, b) = (
                         j.saturating_sub(ACCEL_HALF_SPAN),
                         (j + ACCEL_HALF_SPAN).min(n - 1),
                     );
-                    let dt = points[b].0 - points[a].0;
+                    let dt = seconds(b) - seconds(a);
                     let accel = if dt > 0.0 {
                         (speed[b] - speed[a]) / dt
                     } else {
                         0.0
                     };
-                    let (t, p, heading) = points[j];
+                    let (_, p, heading) = points[j];
                     Sample {
-                        t,
+                        t: seconds(j),
                         p,
                         heading,
                         speed: speed[j],
@@ -447,23 +477,6 @@ fn tracks(geometry: &RingGeometry, frames: &[LogFrame]) -> Vec<Track> {
             }
         })
         .collect()
-}
-
-/// How many track positions there are (every tenth of each track), and how many of them
-/// lie within 4 m of a car lane's centre line of the map.
-fn on_lanes(map: &Map, tracks: &[Track]) -> (usize, usize) {
-    let index = maps::spatial::LaneIndex::car_lanes(map);
-    let mut all = 0;
-    let mut near = 0;
-    for t in tracks {
-        for s in t.samples.iter().step_by(10) {
-            all += 1;
-            if index.nearest(map, s.p).is_some_and(|n| n.distance_m <= 4.0) {
-                near += 1;
-            }
-        }
-    }
-    (all, near)
 }
 
 /// Where and when `track` first crossed a yield line of the ring towards the centre.
@@ -556,8 +569,7 @@ fn distance_to_line_at(track: &Track, crossed_s: f64, t: f64) -> Option<f64> {
 
 /// Per vehicle circulating for at least a second: its median speed on the ring and whether
 /// it had a vehicle close ahead (within 30 m along the ring) most of that time.
-fn circulating_speeds(geometry: &RingGeometry, tracks: &[Track]) -> Vec<(f64, bool)> {
-    let leaders = leaders_by_time(geometry, tracks);
+fn circulating_speeds(tracks: &[Track], leaders: &Leaders) -> Vec<(f64, bool)> {
     tracks
         .iter()
         .filter_map(|t| {
@@ -643,14 +655,13 @@ fn approach_following(tracks: &[Track], entering: &[Entering]) -> Vec<Following>
     out
 }
 
+/// Per (track, time in ms) on the ring: the car-following instant with its nearest
+/// circulating leader along the ring.
+type Leaders = BTreeMap<(u32, i64), Following>;
+
 /// The car-following instants on the ring: every circulating sample with a circulating
 /// vehicle ahead within [`FOLLOWING_MAX_GAP_M`] along the ring.
-fn following(geometry: &RingGeometry, tracks: &[Track]) -> Vec<Following> {
-    leaders_by_time(geometry, tracks).into_values().collect()
-}
-
-/// For each (track, time) on the ring, its nearest circulating leader along the ring.
-fn leaders_by_time(geometry: &RingGeometry, tracks: &[Track]) -> BTreeMap<(u32, i64), Following> {
+fn leaders_by_time(geometry: &RingGeometry, tracks: &[Track]) -> Leaders {
     // Circulating samples by time: (track index, sample index).
     let mut at: BTreeMap<i64, Vec<(usize, usize)>> = BTreeMap::new();
     for (ti, t) in tracks.iter().enumerate() {

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use super::fit::{self, Summary};
-use super::measure::Measurements;
+use super::measure::{Measurements, entry_flows_vph};
 
 /// The metrics, in report order: name, what it is, unit.
 pub const METRICS: [(&str, &str, &str); 8] = [
@@ -141,36 +141,14 @@ pub fn compare(real: &[Measurements], sim: &[Measurements]) -> RealismReport {
         real_minutes: minutes(real),
         sim_minutes: minutes(sim),
         entry_flows: EntryFlows {
-            real_vph: flows(real),
-            sim_vph: flows(sim),
+            real_vph: entry_flows_vph(real),
+            sim_vph: entry_flows_vph(sim),
         },
     }
 }
 
 fn minutes(m: &[Measurements]) -> f64 {
     m.iter().map(|m| m.duration_s).sum::<f64>() / 60.0
-}
-
-fn flows(measured: &[Measurements]) -> Vec<f64> {
-    let seconds: f64 = measured.iter().map(|m| m.duration_s).sum();
-    let n = measured
-        .iter()
-        .map(|m| m.entries_crossed.len())
-        .max()
-        .unwrap_or(0);
-    (0..n)
-        .map(|k| {
-            let c: u32 = measured
-                .iter()
-                .filter_map(|m| m.entries_crossed.get(k))
-                .sum();
-            if seconds > 0.0 {
-                f64::from(c) / seconds * 3600.0
-            } else {
-                0.0
-            }
-        })
-        .collect()
 }
 
 /// `realism.md`: one table row per metric, then the flows per entry.

@@ -7,7 +7,7 @@ use maps::{Map, RoundaboutId};
 use sim::roundabout::{LayoutConfig, RoundaboutLayout};
 use sim::world::{EgoConfig, EntryFlow, ExitShare, TrafficConfig, World, WorldStats};
 
-use super::measure::{Measurements, RingGeometry};
+use super::measure::{Measurements, RingGeometry, entry_flows_vph};
 use crate::project::LogFrame;
 
 /// A simulated run: its frames (one per world step, times from 0 after the warm-up) and the
@@ -75,12 +75,8 @@ pub fn recorded_flows(
         return Err("the recordings hold no time".into());
     }
     let n = geometry.entries.len();
-    let mut crossed = vec![0u32; n];
-    for m in measured {
-        for (k, c) in m.entries_crossed.iter().enumerate().take(n) {
-            crossed[k] += c;
-        }
-    }
+    let mut per_line = entry_flows_vph(measured);
+    per_line.resize(n, 0.0);
     // Each usable entry's line.
     let lines: Vec<(u32, usize)> = layout
         .usable_entries()
@@ -133,7 +129,7 @@ pub fn recorded_flows(
             exits.sort_by_key(|x| x.lane);
             EntryFlow {
                 lane,
-                vph: f64::from(crossed[k]) / seconds * 3600.0 / sharing as f64,
+                vph: per_line[k] / sharing as f64,
                 exits,
             }
         })

@@ -13,7 +13,7 @@ use clap::{Args, Subcommand};
 use logs::decode::read_decoded;
 use logs::project::{LogFrame, log_frames};
 use logs::source::{Log, ReadOptions};
-use logs::traffic::measure::{Measurements, RingGeometry, measure};
+use logs::traffic::measure::{Measurements, RingGeometry, measure, share_on_lanes};
 use maps::{Map, RoundaboutId};
 
 use super::Context;
@@ -189,12 +189,7 @@ fn measure_recordings(ctx: &Context<'_>, args: &Recordings, what: &str) -> Resul
     let mut all: Vec<Vec<Measurements>> = Vec::new();
     for path in &args.logs {
         let frames = read_frames(ctx, path)?;
-        let per: Vec<Measurements> = geometries
-            .iter()
-            .map(|g| measure(&map, g, &frames))
-            .collect();
-        let first = &per[0];
-        let share = first.positions_on_lanes as f64 / first.positions.max(1) as f64;
+        let share = share_on_lanes(&map, &frames);
         if share < MIN_ON_LANES {
             return Err(CliError::file(
                 path,
@@ -207,7 +202,7 @@ fn measure_recordings(ctx: &Context<'_>, args: &Recordings, what: &str) -> Resul
             )
             .into());
         }
-        all.push(per);
+        all.push(geometries.iter().map(|g| measure(g, &frames)).collect());
         progress.inc(1);
     }
     let best = (0..geometries.len())

@@ -64,7 +64,7 @@ pub fn run(ctx: &Context<'_>, args: &RealismArgs) -> Result<()> {
                 seed,
             )?;
             progress.inc(1);
-            Ok(measure(&measured.map, &measured.geometry, &run.frames))
+            Ok(measure(&measured.geometry, &run.frames))
         })
         .collect();
     let sim: Vec<Measurements> = runs
