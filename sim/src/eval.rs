@@ -28,6 +28,7 @@ use serde::{Deserialize, Serialize};
 use crate::env::{Observation, Outcome};
 use crate::error::SimError;
 use crate::seed::derive_seed;
+use crate::stats::{PairedRates, paired_rates, wilson};
 use crate::tasks::{Task, TaskId, TaskPolicy, TaskSummary};
 use crate::world::TrafficLevel;
 
@@ -233,6 +234,96 @@ where
     }
 }
 
+/// One baseline compared with the agent on the same episodes: exact McNemar tests on
+/// reaching and on crashing ("first" is the agent).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PairedTest {
+    pub baseline: String,
+    pub reaches: PairedRates,
+    pub crashes: PairedRates,
+}
+
+/// The agent (the first of `policies`, per condition `c`) against each other policy on the
+/// same episodes of condition `c`.
+pub fn paired_tests<S: TaskSummary>(
+    policies: &[(String, Vec<Vec<S>>)],
+    c: usize,
+) -> Vec<PairedTest> {
+    let outcomes = |episodes: &[S], o: Outcome| -> Vec<bool> {
+        episodes.iter().map(|e| e.outcome() == o).collect()
+    };
+    let Some((_, agent)) = policies.first() else {
+        return Vec::new();
+    };
+    let Some(agent) = agent.get(c) else {
+        return Vec::new();
+    };
+    policies
+        .iter()
+        .skip(1)
+        .filter_map(|(name, per_condition)| {
+            let baseline = per_condition.get(c)?;
+            Some(PairedTest {
+                baseline: name.clone(),
+                reaches: paired_rates(
+                    &outcomes(agent, Outcome::Reached),
+                    &outcomes(baseline, Outcome::Reached),
+                ),
+                crashes: paired_rates(
+                    &outcomes(agent, Outcome::Crashed),
+                    &outcomes(baseline, Outcome::Crashed),
+                ),
+            })
+        })
+        .collect()
+}
+
+/// A markdown table of [`paired_tests`].
+pub fn paired_table(tests: &[PairedTest]) -> String {
+    if tests.is_empty() {
+        return String::new();
+    }
+    let mut out = String::from(
+        "Paired with the agent on the same episodes (exact McNemar): episodes reached only by the agent / only by the baseline, p; crashed likewise.\n\n\
+         | baseline | reached: agent only / baseline only | p | crashed: agent only / baseline only | p |\n\
+         | --- | --- | --- | --- | --- |\n",
+    );
+    for t in tests {
+        out.push_str(&format!(
+            "| {} | {} / {} | {} | {} / {} | {} |\n",
+            t.baseline,
+            t.reaches.only_first,
+            t.reaches.only_second,
+            p_text(t.reaches.p_value),
+            t.crashes.only_first,
+            t.crashes.only_second,
+            p_text(t.crashes.p_value),
+        ));
+    }
+    out
+}
+
+/// A rate with its 95 % interval as text: "99.4 % [98.9, 99.7]".
+pub fn rate_text(rate: f64, ci95: (f64, f64)) -> String {
+    format!(
+        "{:.1} % [{:.1}, {:.1}]",
+        100.0 * rate,
+        100.0 * ci95.0,
+        100.0 * ci95.1
+    )
+}
+
+/// A p-value as text: three significant figures, "< 1e-6" below that.
+pub fn p_text(p: f64) -> String {
+    if p < 1e-6 {
+        "< 1e-6".into()
+    } else if p < 0.001 {
+        format!("{p:.1e}")
+    } else {
+        format!("{p:.3}")
+    }
+}
+
 /// What an evaluation report says of its run.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvalHeader {
@@ -276,6 +367,8 @@ struct NamedCondition {
     condition: String,
     /// The agent first, then the baselines, each on the same episodes (seeds).
     policies: Vec<NamedResult>,
+    /// The agent against each baseline, episode by episode.
+    paired: Vec<PairedTest>,
 }
 
 #[derive(Debug, Serialize)]
@@ -300,8 +393,14 @@ pub fn conditions_report<T: Task>(
             .iter()
             .map(|(policy, episodes)| (policy.clone(), TaskResult::of(&episodes[c])))
             .collect();
-        tables.push_str(&format!("## {name}\n\n{}\n", task_table(&rows)));
+        let paired = paired_tests(&evaluation.policies, c);
+        tables.push_str(&format!(
+            "## {name}\n\n{}\n{}",
+            task_table(&rows),
+            paired_table(&paired)
+        ));
         conditions.push(NamedCondition {
+            paired,
             condition: name,
             policies: rows
                 .into_iter()
@@ -341,7 +440,11 @@ pub fn conditions_report<T: Task>(
 pub struct TaskResult {
     pub episodes: usize,
     pub reaches: f64,
+    /// 95 % Wilson interval of `reaches`.
+    pub reaches_ci95: (f64, f64),
     pub crashes: f64,
+    /// 95 % Wilson interval of `crashes`.
+    pub crashes_ci95: (f64, f64),
     pub off_roads: f64,
     pub time_overs: f64,
     pub mean_return: f64,
@@ -352,9 +455,9 @@ pub struct TaskResult {
 impl TaskResult {
     pub fn of<S: TaskSummary>(episodes: &[S]) -> TaskResult {
         let n = episodes.len();
-        let frac = |o: Outcome| {
-            episodes.iter().filter(|e| e.outcome() == o).count() as f64 / n.max(1) as f64
-        };
+        let count = |o: Outcome| episodes.iter().filter(|e| e.outcome() == o).count();
+        let frac = |o: Outcome| count(o) as f64 / n.max(1) as f64;
+        let interval = |o: Outcome| wilson(count(o) as u64, n as u64);
         let per_episode: Vec<Vec<(&'static str, f64)>> =
             episodes.iter().map(TaskSummary::metrics).collect();
         let names: Vec<&'static str> = per_episode
@@ -378,7 +481,9 @@ impl TaskResult {
         TaskResult {
             episodes: n,
             reaches: frac(Outcome::Reached),
+            reaches_ci95: interval(Outcome::Reached),
             crashes: frac(Outcome::Crashed),
+            crashes_ci95: interval(Outcome::Crashed),
             off_roads: frac(Outcome::OffRoad),
             time_overs: frac(Outcome::TimeOver),
             mean_return: episodes
@@ -409,10 +514,10 @@ pub fn task_table(rows: &[(String, TaskResult)]) -> String {
     out.push('\n');
     for (policy, r) in rows {
         out.push_str(&format!(
-            "| {policy} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} |",
+            "| {policy} | {} | {} | {} | {:.1} % | {:.1} % | {:.2} |",
             r.episodes,
-            100.0 * r.reaches,
-            100.0 * r.crashes,
+            rate_text(r.reaches, r.reaches_ci95),
+            rate_text(r.crashes, r.crashes_ci95),
             100.0 * r.off_roads,
             100.0 * r.time_overs,
             r.mean_return,

@@ -13,7 +13,8 @@
 //! - [`observer`]: which layers a task observes ([`observer::View`]) and the hook for layers
 //!   drawn outside `sim` (the camera-segmentation view of `models`).
 //! - [`baselines`] and [`eval`]: roundabout insertion's rules, and the parallel evaluation
-//!   harness of every task that learned policies plug into.
+//!   harness of every task that learned policies plug into; [`stats`]: the intervals and
+//!   paired tests their reports give.
 
 pub mod baselines;
 pub mod env;
@@ -27,6 +28,7 @@ pub mod roundabout;
 pub mod scene;
 pub mod seed;
 pub mod spatial;
+pub mod stats;
 pub mod synthetic;
 pub mod tasks;
 pub mod world;

@@ -12,7 +12,11 @@ use serde::{Deserialize, Serialize};
 use crate::baselines::{InsertionPolicy, Policy};
 use crate::env::Outcome;
 use crate::error::SimError;
-use crate::eval::{EvalHeader, EvalOptions, EvalReport, Evaluation, evaluate_task};
+use crate::eval::{
+    EvalHeader, EvalOptions, EvalReport, Evaluation, PairedTest, evaluate_task, paired_table,
+    paired_tests, rate_text,
+};
+use crate::stats::wilson;
 use crate::tasks::{EpisodeSummary, InsertionSetup, RoundaboutInsertion};
 use crate::world::TrafficLevel;
 
@@ -56,7 +60,12 @@ pub struct ConditionResult {
     pub episodes: usize,
     /// Fractions of the episodes.
     pub reaches: f64,
+    /// 95 % Wilson intervals of `reaches` and `crashes`.
+    #[serde(default)]
+    pub reaches_ci95: (f64, f64),
     pub crashes: f64,
+    #[serde(default)]
+    pub crashes_ci95: (f64, f64),
     pub off_roads: f64,
     pub time_overs: f64,
     pub mean_return: f64,
@@ -136,11 +145,12 @@ pub fn summarise_conditions(
 /// Counts and means of one condition's episodes.
 pub fn summarise(condition: Condition, episodes: &[EpisodeSummary]) -> ConditionResult {
     let n = episodes.len();
+    let count = |o: Outcome| episodes.iter().filter(|e| e.outcome == o).count();
     let frac = |o: Outcome| {
         if n == 0 {
             0.0
         } else {
-            episodes.iter().filter(|e| e.outcome == o).count() as f64 / n as f64
+            count(o) as f64 / n as f64
         }
     };
     let mean = |f: &dyn Fn(&EpisodeSummary) -> f64| {
@@ -160,7 +170,9 @@ pub fn summarise(condition: Condition, episodes: &[EpisodeSummary]) -> Condition
         aggressiveness: condition.aggressiveness,
         episodes: n,
         reaches: frac(Outcome::Reached),
+        reaches_ci95: wilson(count(Outcome::Reached) as u64, n as u64),
         crashes: frac(Outcome::Crashed),
+        crashes_ci95: wilson(count(Outcome::Crashed) as u64, n as u64),
         off_roads: frac(Outcome::OffRoad),
         time_overs: frac(Outcome::TimeOver),
         mean_return: mean(&|e| e.episode_return),
@@ -191,12 +203,12 @@ pub fn markdown_table(rows: &[(String, Vec<ConditionResult>)]) -> String {
     for (policy, results) in rows {
         for r in results {
             out.push_str(&format!(
-                "| {policy} | {} | {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {:.2} % | {:.1} % |\n",
+                "| {policy} | {} | {} | {} | {} | {} | {:.1} % | {:.1} % | {:.2} | {} | {:.2} % | {:.1} % |\n",
                 r.traffic.name(),
                 r.aggressiveness,
                 r.episodes,
-                100.0 * r.reaches,
-                100.0 * r.crashes,
+                rate_text(r.reaches, r.reaches_ci95),
+                rate_text(r.crashes, r.crashes_ci95),
                 100.0 * r.time_overs,
                 100.0 * r.off_roads,
                 r.mean_speed_mps,
@@ -227,6 +239,8 @@ struct ConditionReport {
     aggressiveness: f64,
     /// The agent first, then the baselines, each on the same episodes.
     policies: Vec<PolicyResult>,
+    /// The agent against each baseline, episode by episode.
+    paired: Vec<PairedTest>,
 }
 
 #[derive(Debug, Serialize)]
@@ -274,10 +288,11 @@ pub(crate) fn report(
                         result: results[c].clone(),
                     })
                     .collect(),
+                paired: paired_tests(&evaluation.policies, c),
             })
             .collect(),
     };
-    let markdown = format!(
+    let mut markdown = format!(
         "# {} on {}\n\n{} episodes per condition and policy, seed {}; the same episodes for every policy.\n\n{}",
         header.agent.display(),
         map.display(),
@@ -285,6 +300,12 @@ pub(crate) fn report(
         header.seed,
         markdown_table(&by_condition(&rows, conditions.len()))
     );
+    for (c, condition) in conditions.iter().enumerate() {
+        let table = paired_table(&paired_tests(&evaluation.policies, c));
+        if !table.is_empty() {
+            markdown.push_str(&format!("\n## {}\n\n{table}", condition.name()));
+        }
+    }
     Ok(EvalReport {
         json: serde_json::to_string_pretty(&json)?,
         markdown,
