@@ -1,5 +1,5 @@
-//! `pipeline sim calibrate` and `sim realism` on real INTERACTION recordings of FT, and
-//! the inputs they refuse.
+//! `pipeline sim calibrate`, `sim realism` and `replay gaps` on real INTERACTION recordings
+//! of FT, and the inputs they refuse.
 
 #![allow(clippy::print_stdout, clippy::unwrap_used)]
 
@@ -205,4 +205,98 @@ fn calibration_refuses_what_it_cannot_fit() {
         "the recorded flows of --config do not fit this map",
         &agent,
     );
+}
+
+#[test]
+fn replay_gaps_scores_the_policies_on_held_out_gaps() {
+    let Some(base) = interaction() else { return };
+    let map = base.join("maps/DR_USA_Roundabout_FT.osm");
+    let tmp = tempfile::tempdir().unwrap();
+    let logs: Vec<PathBuf> = (0..3)
+        .map(|n| {
+            let log = tmp.path().join(format!("ft_{n:03}.mcap"));
+            convert(&ft_tracks(&base, n), &map, &log);
+            log
+        })
+        .collect();
+    let out_dir = tmp.path().join("gaps");
+    let run = |out: &Path, train: &[&PathBuf]| {
+        let mut cmd = pipeline();
+        cmd.args(["--rerun", "off", "replay", "gaps", "--map"])
+            .arg(&map)
+            .arg("--log")
+            .arg(&logs[2])
+            .arg("--out")
+            .arg(out);
+        for t in train {
+            cmd.arg("--train-log").arg(t);
+        }
+        cmd.output().unwrap()
+    };
+    let done = run(&out_dir, &[&logs[0], &logs[1]]);
+    assert_success(&done, "replay gaps");
+    let report = read_json(&out_dir.join("gaps.json"));
+    let offered = report["offered"].as_u64().unwrap();
+    let accepted = report["accepted"].as_u64().unwrap();
+    // Every approach is offered at least the gap it accepted.
+    assert!(
+        offered >= report["approaches"].as_u64().unwrap() && accepted <= offered && accepted > 0,
+        "{report}"
+    );
+    let critical = report["critical_gap_s"].as_f64().unwrap();
+    assert!((1.0..10.0).contains(&critical), "{report}");
+    let policies = report["policies"].as_array().unwrap();
+    let names: Vec<&str> = policies
+        .iter()
+        .map(|p| p["policy"].as_str().unwrap())
+        .collect();
+    assert_eq!(names[0], "critical gap (maximum likelihood)", "{names:?}");
+    assert!(names.contains(&"behaviour cloning") && names.contains(&"always accept"));
+    for p in policies {
+        let (acc, lo, hi) = (
+            p["accuracy"].as_f64().unwrap(),
+            p["ci95"][0].as_f64().unwrap(),
+            p["ci95"][1].as_f64().unwrap(),
+        );
+        assert!(lo <= acc && acc <= hi && (0.0..=1.0).contains(&acc), "{p}");
+        let c = &p["confusion"];
+        let total: u64 = [
+            "accepted_accepted",
+            "accepted_rejected",
+            "rejected_accepted",
+            "rejected_rejected",
+        ]
+        .iter()
+        .map(|k| c[k].as_u64().unwrap())
+        .sum();
+        assert_eq!(total, offered, "{p}");
+    }
+    // Always accept is right exactly on the accepted gaps.
+    let always = policies
+        .iter()
+        .find(|p| p["policy"] == "always accept")
+        .unwrap();
+    let share = accepted as f64 / offered as f64;
+    assert!((always["accuracy"].as_f64().unwrap() - share).abs() < 1e-9);
+    let csv = std::fs::read_to_string(out_dir.join("gaps.csv")).unwrap();
+    assert_eq!(csv.lines().count() as u64, offered + 1);
+    assert!(out_dir.join("gaps.md").is_file());
+
+    // The same seed and inputs give the same report.
+    let again = tmp.path().join("again");
+    assert_success(&run(&again, &[&logs[0], &logs[1]]), "replay gaps again");
+    assert_eq!(
+        std::fs::read(out_dir.join("gaps.json")).unwrap(),
+        std::fs::read(again.join("gaps.json")).unwrap()
+    );
+
+    // A recording both scored and fitted on is refused, naming it.
+    let refused = tmp.path().join("refused");
+    let done = run(&refused, &[&logs[0], &logs[2]]);
+    assert_refused(
+        &done,
+        "is given both to score (--log) and to fit on (--train-log)",
+        &refused,
+    );
+    assert!(stderr(&done).contains("ft_002.mcap"), "{}", stderr(&done));
 }

@@ -248,6 +248,28 @@ fn has_leader(frame: &LogFrame, track: u32, gap_m: f64) -> bool {
     })
 }
 
+/// Vehicles this close to the ring's centre line (in distance from the roundabout's
+/// centre) count as circulating, m.
+const RING_HALF_WIDTH_M: f64 = 4.0;
+
+/// Distance from `track` to the nearest other vehicle on a roundabout's ring, m.
+pub fn nearest_circulating(map: &Map, frame: &LogFrame, track: u32) -> f64 {
+    let Some(me) = frame.actors.iter().find(|a| a.id == track) else {
+        return f64::INFINITY;
+    };
+    frame
+        .actors
+        .iter()
+        .filter(|a| a.id != track)
+        .filter(|a| {
+            map.roundabouts
+                .values()
+                .any(|r| (a.position.distance(r.centre) - r.radius_m).abs() <= RING_HALF_WIDTH_M)
+        })
+        .map(|a| a.position.distance(me.position))
+        .fold(f64::INFINITY, f64::min)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -31,6 +31,7 @@ pub mod ego;
 pub mod error;
 pub mod foxglove;
 pub mod frames;
+pub mod gaps;
 pub mod info;
 pub mod interaction;
 pub mod mcap_read;

@@ -15,6 +15,7 @@ pub mod log_args;
 pub mod output;
 pub mod plots;
 pub mod recording;
+pub mod recordings;
 pub mod tasks;
 pub mod ui;
 

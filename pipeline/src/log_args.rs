@@ -194,3 +194,41 @@ pub fn require_roundabout(map: &maps::Map, map_path: &Path) -> Result<()> {
     }
     Ok(())
 }
+
+/// The agent of folder `dir` as the replay commands run it, with the task config it was
+/// trained on: asked at every log frame (an agent that decided every few steps keeps its
+/// frames as far apart as in training; `note` is told); an error when its view cannot be
+/// drawn from logs.
+pub fn load_replay_agent(
+    dir: &Path,
+    device: &burn::tensor::Device,
+    note: &mut dyn FnMut(&str),
+) -> Result<(
+    models::policy::QPolicy,
+    sim::tasks::insertion::InsertionConfig,
+)> {
+    use crate::agent_folder::{TASK_FILE, models_error, read_task};
+    let description = models::dqn::read_agent_description(dir).map_err(|e| models_error(e, dir))?;
+    let mut config = read_task(dir)?.insertion_config(&dir.join(TASK_FILE))?;
+    if config.action_repeat > 1 {
+        // Logs give a frame, so a decision, every world step: an agent trained deciding
+        // every few steps is asked at every frame, on frames stacked as far apart as in
+        // training (as `agent eval --action-repeat 1` does).
+        note(&format!(
+            "the agent decided every {} steps in training; it is asked at every log frame, its frames {} steps apart",
+            config.action_repeat,
+            config.frame_steps.unwrap_or(config.action_repeat)
+        ));
+        config = config.deciding_every(1);
+    }
+    refuse_unprojectable(&config, &format!("the agent in {}", dir.display()))?;
+    let network =
+        models::dqn::load_network(dir, &description, device).map_err(|e| models_error(e, dir))?;
+    let policy = models::policy::QPolicy::new(
+        network,
+        description.shape.spec(),
+        description.shape.actions,
+        device.clone(),
+    );
+    Ok((policy, config))
+}

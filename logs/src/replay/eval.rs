@@ -18,8 +18,9 @@ use sim::tasks::insertion::Action;
 use super::ReplayLog;
 use super::report::Counts;
 use super::tally::{LoopTally, Tally, score_approach};
-use super::views::{Views, nearest_circulating};
+use super::views::{FrameInput, Views};
 use crate::closed_loop::{ClosedLoopConfig, ClosedLoopView, Command, drive};
+use crate::decisions::nearest_circulating;
 use crate::decisions::{Approach, Decision};
 
 /// The gap rules' thresholds (go when the nearest vehicle on the ring is further than this,
@@ -194,14 +195,7 @@ pub fn evaluate(
         // The agent, once per aggressiveness level.
         if let Some(policy) = policies.agent {
             for (level, score) in levels.iter().zip(&mut scores[first_agent_score..]) {
-                let mut last = Action::Permitted;
-                let mut goes = Vec::new();
-                for input in &inputs {
-                    let observation = views.observation(input.clone(), *level, Some(last));
-                    let q = policy.q_values(&[&observation]);
-                    last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
-                    goes.push(last == Action::Permitted);
-                }
+                let goes = agent_goes(views, &inputs, policy, *level);
                 score_approach(score, &log.name, approach, &log.frames, &goes);
             }
         }
@@ -213,6 +207,20 @@ pub fn evaluate(
         policies: scores,
         closed_loop: loops,
     }
+}
+
+/// The agent's go (Permitted) or not at each of an approach's frames `inputs`, deciding
+/// frame after frame with its last action as input, at aggressiveness `level`.
+pub fn agent_goes(views: &Views, inputs: &[FrameInput], policy: &QPolicy, level: f64) -> Vec<bool> {
+    let mut last = Action::Permitted;
+    let mut goes = Vec::with_capacity(inputs.len());
+    for input in inputs {
+        let observation = views.observation(input.clone(), level, Some(last));
+        let q = policy.q_values(&[&observation]);
+        last = Action::from_index(greedy_action(&q)).unwrap_or(Action::NotPermitted);
+        goes.push(last == Action::Permitted);
+    }
+    goes
 }
 
 /// Drives `approach` closed loop with every policy (in the order of `loops`: the rules and

@@ -28,10 +28,11 @@ use sim::tasks::insertion::InsertionConfig;
 use crate::decisions::{Approach, LabelConfig, approaches};
 use crate::project::LogFrame;
 
-pub use eval::{BC_AGGRESSIVENESS, BcExamples, Policies, RULE_THRESHOLDS, evaluate};
+pub use crate::decisions::nearest_circulating;
+pub use eval::{BC_AGGRESSIVENESS, BcExamples, Policies, RULE_THRESHOLDS, agent_goes, evaluate};
 pub use report::{Counts, MergeError, Report, Settings, ShardFile, markdown, merge_shard_dirs};
 pub use tally::{LoopScore, LoopTally, Score, Tally};
-pub use views::{ClosedLoopInputs, FrameInput, Views, nearest_circulating};
+pub use views::{ClosedLoopInputs, FrameInput, Views};
 
 /// The report of a run.
 pub const REPLAY_JSON: &str = "replay.json";

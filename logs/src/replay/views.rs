@@ -10,13 +10,9 @@ use sim::tasks::insertion::{
 use sim::{Observation, ObservationSpec, SimError};
 
 use crate::closed_loop::ClosedLoopView;
-use crate::decisions::Approach;
+use crate::decisions::{Approach, nearest_circulating};
 use crate::noise::NoiseConfig;
 use crate::project::{LogFrame, project};
-
-/// Vehicles this close to the ring's centre line (in distance from the roundabout's
-/// centre) count as circulating, m.
-const RING_HALF_WIDTH_M: f64 = 4.0;
 
 /// What the policies that read the bird's-eye view (the agent, behaviour cloning) see;
 /// offline training (`agent train --offline`) learns from the same.
@@ -254,24 +250,6 @@ fn stacks_at<'a>(
         }
     }
     out
-}
-
-/// Distance from `track` to the nearest other vehicle on a roundabout's ring, m.
-pub fn nearest_circulating(map: &Map, frame: &LogFrame, track: u32) -> f64 {
-    let Some(me) = frame.actors.iter().find(|a| a.id == track) else {
-        return f64::INFINITY;
-    };
-    frame
-        .actors
-        .iter()
-        .filter(|a| a.id != track)
-        .filter(|a| {
-            map.roundabouts
-                .values()
-                .any(|r| (a.position.distance(r.centre) - r.radius_m).abs() <= RING_HALF_WIDTH_M)
-        })
-        .map(|a| a.position.distance(me.position))
-        .fold(f64::INFINITY, f64::min)
 }
 
 #[cfg(test)]

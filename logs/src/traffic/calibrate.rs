@@ -257,7 +257,7 @@ pub fn calibrate(
 }
 
 /// Each entering driver's accepted gap and largest rejected gap, over every recording.
-fn gap_observations(measured: &[Measurements]) -> Vec<fit::GapObservation> {
+pub(crate) fn gap_observations(measured: &[Measurements]) -> Vec<fit::GapObservation> {
     measured
         .iter()
         .flat_map(|m| &m.entering)

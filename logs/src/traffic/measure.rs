@@ -49,6 +49,8 @@ pub const FOLLOW_UP_MAX_S: f64 = 10.0;
 /// A circulating vehicle is followed by one this far behind it along the ring or nearer
 /// (bumper to bumper), m.
 const FOLLOWING_MAX_GAP_M: f64 = 40.0;
+/// A vehicle passing the same merge point again this soon is the same pass, s.
+const REPASS_S: f64 = 1.0;
 /// Half-steps of the central difference of speeds giving an acceleration.
 const ACCEL_HALF_SPAN: usize = 3;
 
@@ -138,13 +140,13 @@ impl RingGeometry {
 }
 
 /// Polar angle of `p` round `c`.
-fn polar(c: Point, p: Point) -> f64 {
+pub(crate) fn polar(c: Point, p: Point) -> f64 {
     let d = p.sub(c);
     d.y.atan2(d.x)
 }
 
 /// `a` wrapped into (−π, π].
-fn wrap(a: f64) -> f64 {
+pub(crate) fn wrap(a: f64) -> f64 {
     let t = std::f64::consts::TAU;
     let w = a.rem_euclid(t);
     if w > std::f64::consts::PI { w - t } else { w }
@@ -152,15 +154,15 @@ fn wrap(a: f64) -> f64 {
 
 /// One position of a track.
 #[derive(Debug, Clone, Copy)]
-struct Sample {
-    t: f64,
-    p: Point,
-    heading: f64,
-    speed: f64,
+pub(crate) struct Sample {
+    pub(crate) t: f64,
+    pub(crate) p: Point,
+    pub(crate) heading: f64,
+    pub(crate) speed: f64,
     accel: f64,
-    on_ring: bool,
+    pub(crate) on_ring: bool,
     /// Polar angle round the centre.
-    angle: f64,
+    pub(crate) angle: f64,
 }
 
 /// A track as read: length, width, and (time in ns from the first frame, position, heading)
@@ -169,11 +171,11 @@ type RawTrack = (f64, f64, Vec<(u64, Point, f64)>);
 
 /// One vehicle's track.
 #[derive(Debug, Clone)]
-struct Track {
-    id: u32,
+pub(crate) struct Track {
+    pub(crate) id: u32,
     length_m: f64,
     width_m: f64,
-    samples: Vec<Sample>,
+    pub(crate) samples: Vec<Sample>,
 }
 
 /// One vehicle entering the ring.
@@ -201,6 +203,10 @@ pub struct Entering {
     pub accepted_s: Option<f64>,
     /// The gaps it rejected, in order.
     pub rejected_s: Vec<f64>,
+    /// When each gap it was offered began: its arrival at the line (the lag), then each
+    /// pass while it waited; the last is the accepted gap's (one more than `rejected_s`).
+    #[serde(default)]
+    pub gap_starts_s: Vec<f64>,
     /// The headway to the vehicle that crossed the line just before it, when it followed
     /// that one out of a queue.
     pub follow_up_s: Option<f64>,
@@ -235,6 +241,9 @@ pub struct Measurements {
     pub entries_crossed: Vec<u32>,
     /// Per entry and minute of the recording: vehicles crossing its line.
     pub per_minute: Vec<Vec<u32>>,
+    /// Per entry: its merge angle round the centre, rad (see the module docs).
+    #[serde(default)]
+    pub merge_angles: Vec<f64>,
 }
 
 /// The share of the road users' positions in `frames` (every tenth frame) that lie within
@@ -340,6 +349,14 @@ pub fn measure(geometry: &RingGeometry, frames: &[LogFrame]) -> Measurements {
     }
     for p in &mut passes {
         p.sort_by(|a, b| a.0.total_cmp(&b.0));
+        // A vehicle exactly at the merge angle at a sample ends one step and begins the
+        // next: count it once.
+        let mut last_of: BTreeMap<u32, f64> = BTreeMap::new();
+        p.retain(|&(t, id)| {
+            let repeat = last_of.get(&id).is_some_and(|&l| t - l < REPASS_S);
+            last_of.insert(id, t);
+            !repeat
+        });
     }
 
     // Gaps and follow-up headways, entry by entry in crossing order.
@@ -366,10 +383,13 @@ pub fn measure(geometry: &RingGeometry, frames: &[LogFrame]) -> Measurements {
             .collect();
         let mut start = e.at_line_s;
         let mut rejected = Vec::new();
+        let mut starts = vec![start];
         for &t in &during {
             rejected.push((t - start).min(GAP_CAP_S));
             start = t;
+            starts.push(t);
         }
+        e.gap_starts_s = starts;
         let next = mine.iter().find(|&&t| t > merged_s).copied();
         e.accepted_s = match next {
             Some(t) => Some((t - start).min(GAP_CAP_S)),
@@ -416,12 +436,13 @@ pub fn measure(geometry: &RingGeometry, frames: &[LogFrame]) -> Measurements {
         entering,
         entries_crossed,
         per_minute,
+        merge_angles,
     }
 }
 
 /// The frames' tracks near the ring, each with speeds, accelerations and ring flags; times in
 /// seconds from the first frame.
-fn tracks(geometry: &RingGeometry, frames: &[LogFrame]) -> Vec<Track> {
+pub(crate) fn tracks(geometry: &RingGeometry, frames: &[LogFrame]) -> Vec<Track> {
     let Some(first) = frames.first() else {
         return Vec::new();
     };
@@ -536,6 +557,7 @@ fn first_entry(geometry: &RingGeometry, track: &Track) -> Option<Entering> {
         accepted_s: None,
         rejected_s: Vec::new(),
         follow_up_s: None,
+        gap_starts_s: Vec::new(),
     })
 }
 

@@ -8,15 +8,12 @@ use logs::replay::{
     BcExamples, Counts, Policies, REPLAY_SHARD_JSON, Report, Settings, ShardFile, default_task,
     evaluate,
 };
-use models::dqn::{load_network, read_agent_description};
-use models::policy::QPolicy;
 
 use super::{EvalArgs, MARKERS, write_report};
-use crate::agent_folder::{TASK_FILE, models_error, read_task};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
-use crate::log_args::{read_replay_log, refuse_unprojectable, replay_views, require_roundabout};
+use crate::log_args::{load_replay_agent, read_replay_log, replay_views, require_roundabout};
 use crate::output::{AtomicDir, write_json};
 
 pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
@@ -31,29 +28,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let (agent, task) = match &args.agent {
         None => (None, default_task()),
         Some(dir) => {
-            progress.step(&format!("loading the agent {}", dir.display()));
-            let description = read_agent_description(dir).map_err(|e| models_error(e, dir))?;
-            let mut config = read_task(dir)?.insertion_config(&dir.join(TASK_FILE))?;
-            if config.action_repeat > 1 {
-                // Logs give a frame, so a decision, every world step: an agent trained
-                // deciding every few steps is asked at every frame, on frames stacked as far
-                // apart as in training (as `agent eval --action-repeat 1` does).
-                progress.note(&format!(
-                    "the agent decided every {} steps in training; it is asked at every log frame, its frames {} steps apart",
-                    config.action_repeat,
-                    config.frame_steps.unwrap_or(config.action_repeat)
-                ));
-                config = config.deciding_every(1);
-            }
-            refuse_unprojectable(&config, &format!("the agent in {}", dir.display()))?;
-            let network =
-                load_network(dir, &description, &device).map_err(|e| models_error(e, dir))?;
-            let policy = QPolicy::new(
-                network,
-                description.shape.spec(),
-                description.shape.actions,
-                device.clone(),
-            );
+            let (policy, config) = load_replay_agent(dir, &device, &mut |s| progress.note(s))?;
             (Some(policy), config)
         }
     };

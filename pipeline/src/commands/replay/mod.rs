@@ -10,6 +10,7 @@
 //! `replay.json` and `replay.md`.
 
 mod eval;
+mod gaps;
 mod merge;
 
 use std::path::{Path, PathBuf};
@@ -30,9 +31,58 @@ pub enum ReplayCommand {
     /// Agreement of policies (an agent, the gap rules, always go) with real drivers' go /
     /// wait decisions at roundabout entries, frame by frame.
     Eval(EvalArgs),
+    /// Gap acceptance at roundabout entries: every gap offered to a recorded driver and
+    /// whether it entered, with the critical gap fitted on --train-log recordings, and the
+    /// policies (critical-gap rules, distance rules, behaviour cloning, an agent) scored on
+    /// each gap: gaps.json, gaps.md, gaps.csv.
+    Gaps(GapsArgs),
     /// Add up the shards of one `replay eval --shard i/n` run into its replay.json and
     /// replay.md (the unsharded run's, byte for byte).
     Merge(MergeArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct GapsArgs {
+    /// A recording to score (MCAP from `logs convert`, or any log with object detections);
+    /// repeat for several.
+    #[arg(long = "log", value_name = "FILE", required = true)]
+    pub logs: Vec<PathBuf>,
+
+    /// The map the recordings were made on (a Lanelet2 / OSM file or an imported map).
+    #[arg(long, value_name = "PATH")]
+    pub map: PathBuf,
+
+    /// The roundabout of the map (its id, as `map info` lists them) [default: the one the
+    /// recorded vehicles enter most].
+    #[arg(long, value_name = "ID")]
+    pub roundabout: Option<u32>,
+
+    /// Recordings to fit the critical gaps and behaviour cloning on (never a scored one);
+    /// repeat for several. Without them only the distance rules and always accept are
+    /// scored, and the critical gap reported describes the scored recordings.
+    #[arg(long = "train-log", value_name = "FILE")]
+    pub train_logs: Vec<PathBuf>,
+
+    /// The map the --train-log recordings were made on, when it is not --map (policies
+    /// fitted at one roundabout scored at another).
+    #[arg(long, value_name = "PATH")]
+    pub train_map: Option<PathBuf>,
+
+    /// An agent folder (`agent train`) to score beside the rules.
+    #[arg(long, value_name = "DIR")]
+    pub agent: Option<PathBuf>,
+
+    /// The agent's aggressiveness input.
+    #[arg(long, value_name = "A", default_value_t = 0.5)]
+    pub aggressiveness: f64,
+
+    /// The route's nominal speed the agent is told, m/s.
+    #[arg(long, value_name = "MPS", default_value_t = 8.0)]
+    pub target_speed: f64,
+
+    /// Output folder.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
 }
 
 #[derive(Debug, Args)]
@@ -98,6 +148,7 @@ pub struct EvalArgs {
 pub fn run(ctx: &Context<'_>, command: &ReplayCommand) -> Result<()> {
     match command {
         ReplayCommand::Eval(args) => eval::run(ctx, args),
+        ReplayCommand::Gaps(args) => gaps::run(ctx, args),
         ReplayCommand::Merge(args) => merge::run(ctx, args),
     }
 }

@@ -3,14 +3,14 @@
 use anyhow::Result;
 use logs::traffic::calibrate::{calibrate, to_toml};
 
-use super::{CalibrateArgs, measure_recordings};
+use super::{CalibrateArgs, read_measured};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{write_file_atomic, write_json};
 
 pub fn run(ctx: &Context<'_>, args: &CalibrateArgs) -> Result<()> {
     let r = &args.recordings;
-    let measured = measure_recordings(ctx, r, "sim calibrate")?;
+    let measured = read_measured(ctx, r, "sim calibrate")?;
     let mut progress = ctx.ui.progress("sim calibrate");
     progress.step("fitting");
     let layout = ctx.config.layout.unwrap_or_default();

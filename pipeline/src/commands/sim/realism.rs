@@ -8,7 +8,7 @@ use logs::traffic::simulate::simulate;
 use rayon::prelude::*;
 use sim::seed::derive_seed;
 
-use super::{RealismArgs, measure_recordings};
+use super::{RealismArgs, read_measured};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic, write_json};
@@ -36,7 +36,7 @@ pub fn run(ctx: &Context<'_>, args: &RealismArgs) -> Result<()> {
     let out = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out, MARKERS)?;
     let r = &args.recordings;
-    let measured = measure_recordings(ctx, r, "sim realism")?;
+    let measured = read_measured(ctx, r, "sim realism")?;
     let mut traffic = ctx.config.traffic.clone().unwrap_or_default();
     let layout = ctx.config.layout.unwrap_or_default();
     traffic.level = sim::world::TrafficLevel::Recorded;
