@@ -63,8 +63,26 @@ fn route_following_trains_and_evaluates_with_its_baselines() {
             assert_eq!(metrics[0][0], "route completion %");
         }
     }
+    // Every rate with its Wilson interval; the agent paired with each baseline.
+    for condition in conditions {
+        for p in condition["policies"].as_array().unwrap() {
+            let (lo, hi) = (
+                p["reaches_ci95"][0].as_f64().unwrap(),
+                p["reaches_ci95"][1].as_f64().unwrap(),
+            );
+            let r = p["reaches"].as_f64().unwrap();
+            assert!(lo <= r && r <= hi && hi > lo, "{p}");
+        }
+        let paired = condition["paired"].as_array().unwrap();
+        assert_eq!(paired.len(), 4, "{condition}");
+        for t in paired {
+            let p = t["reaches"]["p_value"].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&p), "{t}");
+        }
+    }
     let table = std::fs::read_to_string(eval.join("eval.md")).unwrap();
     assert!(table.contains("| rule: pure pursuit | 3 |"), "{table}");
+    assert!(table.contains("exact McNemar"), "{table}");
 
     // --roundabout is for roundabout tasks: one clear error, nothing written.
     let elsewhere = dir.path().join("eval-ring");
@@ -235,4 +253,73 @@ fn steps_within_the_warm_up_are_refused() {
         "{err}"
     );
     assert!(!dir.path().join("agent.partial").exists());
+}
+
+/// Roundabout insertion trained on several maps: `--map` and a `--maps` list (with a ring
+/// id), all recorded in task.json; a bad list line is one error naming the file and line.
+#[test]
+fn insertion_trains_on_several_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("insertion.toml");
+    std::fs::write(
+        &config,
+        "[agent.dqn]\ntotal_steps = 300\nwarmup_steps = 100\nenvs = 2\nbatch_size = 8\n\
+         replay_capacity = 1000\n[agent.dqn.network]\nconvolutions = []\nhidden = [16]\n\
+         [agent.task.observation]\nwidth = 16\nheight = 16\nstack = 1\n",
+    )
+    .unwrap();
+    let map = bundled_osm("montlake_roundabout.osm.pbf");
+    let list = dir.path().join("maps.txt");
+    std::fs::write(
+        &list,
+        format!("# the same ring, named\n{} 0\n", map.display()),
+    )
+    .unwrap();
+    let agent = dir.path().join("agent");
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "--config".as_ref(),
+        config.as_os_str(),
+        "agent".as_ref(),
+        "train".as_ref(),
+        "--map".as_ref(),
+        map.as_os_str(),
+        "--maps".as_ref(),
+        list.as_os_str(),
+        "--out".as_ref(),
+        agent.as_os_str(),
+        "--record-episodes".as_ref(),
+        "0".as_ref(),
+    ]);
+    assert_success(&out, "agent train on two maps");
+    let task = read_json(&agent.join("task.json"));
+    let maps = task["maps"].as_array().unwrap();
+    assert_eq!(maps.len(), 2, "{task}");
+    assert_eq!(maps[1]["roundabout"], 0);
+    assert_eq!(task["map"], maps[0]["path"]);
+
+    std::fs::write(&list, format!("{} zero\n", map.display())).unwrap();
+    let refused = dir.path().join("refused");
+    let out = run([
+        "--rerun".as_ref(),
+        "off".as_ref(),
+        "--config".as_ref(),
+        config.as_os_str(),
+        "agent".as_ref(),
+        "train".as_ref(),
+        "--maps".as_ref(),
+        list.as_os_str(),
+        "--out".as_ref(),
+        refused.as_os_str(),
+    ]);
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("maps.txt")
+            && err.contains("line 1")
+            && err.contains("\"zero\" is not a roundabout id"),
+        "{err}"
+    );
+    assert!(!refused.exists());
 }

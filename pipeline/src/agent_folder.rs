@@ -33,13 +33,25 @@ pub const SUMMARY_FILE: &str = "summary.json";
 /// A folder holding any of these is an earlier agent that may be replaced.
 pub const AGENT_MARKERS: Markers = &[AGENT_FILE, TASK_FILE];
 
+/// One map `agent train` trained on, and the ring of it (None: the task's choice).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainingMap {
+    pub path: PathBuf,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roundabout: Option<u32>,
+}
+
 /// `task.json` of an agent folder: what it was trained on, so evaluation renders the same
 /// observations.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TaskRecord {
     pub task: Task,
-    /// The map file as given to `agent train` (None for tasks on a synthetic road).
+    /// The map file as given to `agent train` (None for tasks on a synthetic road); the
+    /// first of several.
     pub map: Option<PathBuf>,
+    /// Every training map with its ring, when there were several or a ring was named.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub maps: Vec<TrainingMap>,
     pub traffic: TrafficLevel,
     /// The task's `[agent.<table>]` settings (see [`sim::tasks::Task::Config`]).
     pub config: serde_json::Value,

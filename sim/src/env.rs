@@ -80,10 +80,111 @@ pub trait Env: Send {
     fn step(&mut self, action: usize) -> Step;
 }
 
+/// Several environments of one task (one per map or ring) as one: each episode is played
+/// in the environment its seed picks (`seed % n`), so training meets all of them. They
+/// must agree on observations and actions ([`Rotating::new`] checks).
+#[derive(Debug)]
+pub struct Rotating<E> {
+    envs: Vec<E>,
+    current: usize,
+}
+
+impl<E: Env> Rotating<E> {
+    /// The environments as one; None when there is none or when their observation specs
+    /// or action counts differ.
+    pub fn new(envs: Vec<E>) -> Option<Rotating<E>> {
+        let first = envs.first()?;
+        let (spec, actions) = (first.observation_spec(), first.action_count());
+        envs.iter()
+            .all(|e| e.observation_spec() == spec && e.action_count() == actions)
+            .then_some(Rotating { envs, current: 0 })
+    }
+
+    /// The environment of the current (or last) episode.
+    pub fn current(&self) -> usize {
+        self.current
+    }
+}
+
+impl<E: Env> Env for Rotating<E> {
+    fn observation_spec(&self) -> ObservationSpec {
+        self.envs[self.current].observation_spec()
+    }
+
+    fn action_count(&self) -> usize {
+        self.envs[self.current].action_count()
+    }
+
+    fn action_names(&self) -> &'static [&'static str] {
+        self.envs[self.current].action_names()
+    }
+
+    fn reset(&mut self, seed: u64) -> Observation {
+        self.current = (seed % self.envs.len() as u64) as usize;
+        self.envs[self.current].reset(seed)
+    }
+
+    fn step(&mut self, action: usize) -> Step {
+        self.envs[self.current].step(action)
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
-    use super::Outcome;
+    use super::*;
+
+    /// An environment that observes its own id in one scalar.
+    struct Tagged(u8, usize);
+
+    impl Env for Tagged {
+        fn observation_spec(&self) -> ObservationSpec {
+            ObservationSpec {
+                channels: 0,
+                height: 0,
+                width: 0,
+                scalars: 1,
+            }
+        }
+        fn action_count(&self) -> usize {
+            self.1
+        }
+        fn action_names(&self) -> &'static [&'static str] {
+            &["a", "b"]
+        }
+        fn reset(&mut self, _seed: u64) -> Observation {
+            Observation {
+                layers: Vec::new(),
+                scalars: vec![f32::from(self.0)],
+            }
+        }
+        fn step(&mut self, _action: usize) -> Step {
+            Step {
+                observation: self.reset(0),
+                reward: f32::from(self.0),
+                outcome: None,
+            }
+        }
+    }
+
+    #[test]
+    fn rotating_plays_each_episode_in_the_environment_its_seed_picks() {
+        let mut env = Rotating::new(vec![Tagged(0, 2), Tagged(1, 2), Tagged(2, 2)]).unwrap();
+        for seed in [0u64, 1, 2, 3, 7, 11, 1_000_000_005] {
+            let first = env.reset(seed);
+            let expected = (seed % 3) as f32;
+            assert_eq!(first.scalars, [expected]);
+            assert_eq!(env.current() as f32, expected);
+            // The episode stays in that environment until the next reset.
+            assert_eq!(env.step(0).reward, expected);
+            assert_eq!(env.step(1).reward, expected);
+        }
+        assert!(
+            Rotating::new(vec![Tagged(0, 2), Tagged(1, 3)]).is_none(),
+            "actions differ"
+        );
+        assert!(Rotating::<Tagged>::new(Vec::new()).is_none());
+    }
 
     #[test]
     fn outcome_names_are_the_serde_names() {

@@ -77,9 +77,16 @@ pub struct TrainArgs {
     pub task: TaskId,
 
     /// The map: a folder or file from `pipeline map import`, or an OSM / Lanelet2 file
-    /// (required by the tasks that drive on a map).
+    /// (required by the tasks that drive on a map). Repeat to train on several: each
+    /// episode is drawn on one of them.
     #[arg(long, value_name = "PATH")]
-    pub map: Option<PathBuf>,
+    pub map: Vec<PathBuf>,
+
+    /// A file listing training maps, one per line: `PATH [ROUNDABOUT]` (a roundabout id, as
+    /// `map info` lists them, to train on that ring of the map), `#` comments; relative
+    /// paths are from the file's folder. Added to --map.
+    #[arg(long, value_name = "FILE")]
+    pub maps: Option<PathBuf>,
 
     /// Agent folder (written atomically at the end; checkpoints go to DIR.partial meanwhile).
     #[arg(long, value_name = "DIR")]

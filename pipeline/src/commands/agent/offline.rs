@@ -41,7 +41,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         )
         .into());
     }
-    let Some(map_path) = &args.map else {
+    let Some(map_path) = args.map.first() else {
         return Err(CliError::new(
             "--offline needs --map, the map the logs were recorded on",
             hint,
@@ -154,6 +154,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let task = TaskRecord {
         task: Task::RoundaboutInsertion,
         map: Some(map_path.clone()),
+        maps: Vec::new(),
         traffic: TrafficLevel::Medium,
         config: serde_json::to_value(&task_config)?,
         validation: Default::default(),

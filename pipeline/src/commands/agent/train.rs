@@ -17,13 +17,14 @@ use models::dqn::DqnConfig;
 use models::policy::QPolicy;
 use models::training::TrainSummary;
 use models::validation::{VALIDATION_FILE, validation_seed};
+use sim::env::Rotating;
 use sim::tasks::{Task, TaskVisitor};
 use sim::world::TrafficLevel;
 
 use super::TrainArgs;
 use crate::agent_folder::{
-    AGENT_MARKERS, SUMMARY_FILE, TASK_FILE, TaskRecord, find_checkpoint, models_error, partial_dir,
-    start_validation,
+    AGENT_MARKERS, SUMMARY_FILE, TASK_FILE, TaskRecord, TrainingMap, find_checkpoint, models_error,
+    partial_dir, start_validation,
 };
 use crate::agent_progress::{RunSpan, TrainProgress};
 use crate::agent_recording::{log_history, record_episodes};
@@ -113,20 +114,49 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         .into());
     }
     let traffic = TrafficLevel::from(args.traffic);
+    let maps = training_maps(args)?;
+    let first_map = maps.first().map(|m| m.path.clone());
     if traffic == TrafficLevel::Recorded {
-        super::eval::require_recorded(ctx, args.map.as_deref())?;
+        if maps.len() > 1 {
+            return Err(CliError::new(
+                "--traffic recorded runs the calibration's flows, which belong to one map",
+                "train on one --map, or at low, medium or high traffic",
+            )
+            .into());
+        }
+        super::eval::require_recorded(ctx, first_map.as_deref())?;
     }
 
-    if let Some(map) = &args.map {
-        progress.step(&format!("loading {}", map.display()));
+    // One setup per training map (and ring); the first also records and validates alone.
+    let mut setups = Vec::with_capacity(maps.len().max(1));
+    for m in &maps {
+        progress.step(&format!("loading {}", m.path.display()));
+        setups.push(crate::tasks::setup::<T>(
+            Some(&m.path),
+            &on_ring::<T>(&task_config, m)?,
+        )?);
     }
-    let setup = crate::tasks::setup::<T>(args.map.as_deref(), &task_config)?;
-    let envs: Vec<T> = (0..dqn.envs)
-        .map(|_| T::training_env(&setup, traffic))
-        .collect();
+    if setups.is_empty() {
+        setups.push(crate::tasks::setup::<T>(None, &task_config)?);
+    }
+    let setup = Arc::clone(&setups[0]);
+    let envs: Vec<Rotating<T>> = (0..dqn.envs)
+        .map(|_| Rotating::new(setups.iter().map(|s| T::training_env(s, traffic)).collect()))
+        .collect::<Option<_>>()
+        .ok_or_else(|| {
+            CliError::new(
+                "the training maps give different observations or actions",
+                "train on maps of one task with one --config",
+            )
+        })?;
     let task = TaskRecord {
         task: args.task,
-        map: args.map.clone(),
+        map: first_map.clone(),
+        maps: if maps.len() > 1 || maps.iter().any(|m| m.roundabout.is_some()) {
+            maps.clone()
+        } else {
+            Vec::new()
+        },
         traffic,
         config: serde_json::to_value(&task_config)
             .context("the task's config cannot be written as JSON")?,
@@ -135,7 +165,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let validation = if validation_config.is_off() {
         None
     } else {
-        let setup = match validation_config.action_repeat {
+        let validation_setups = match validation_config.action_repeat {
             Some(steps) => {
                 let config = T::deciding_every(&task_config, steps).ok_or_else(|| {
                     CliError::new(
@@ -143,14 +173,41 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
                         "leave action_repeat out of [agent.validation]",
                     )
                 })?;
-                crate::tasks::setup::<T>(args.map.as_deref(), &config)?
+                if maps.is_empty() {
+                    vec![crate::tasks::setup::<T>(None, &config)?]
+                } else {
+                    maps.iter()
+                        .map(|m| {
+                            crate::tasks::setup::<T>(Some(&m.path), &on_ring::<T>(&config, m)?)
+                        })
+                        .collect::<Result<Vec<_>>>()?
+                }
             }
-            None => Arc::clone(&setup),
+            None => setups.clone(),
         };
         let episodes = validation_config.episodes;
         let validation_seed = validation_seed(seed);
+        // Each training map's validation episodes; the shares averaged over the maps.
         let run = Box::new(move |policy: &QPolicy| {
-            sim::eval::reached_shares::<T, _>(&setup, policy, traffic, episodes, validation_seed)
+            let mut shares: Vec<(String, f64)> = Vec::new();
+            for setup in &validation_setups {
+                let per = sim::eval::reached_shares::<T, _>(
+                    setup,
+                    policy,
+                    traffic,
+                    episodes,
+                    validation_seed,
+                );
+                if shares.is_empty() {
+                    shares = per;
+                } else {
+                    for ((_, total), (_, share)) in shares.iter_mut().zip(per) {
+                        *total += share;
+                    }
+                }
+            }
+            let n = validation_setups.len().max(1) as f64;
+            shares.into_iter().map(|(name, s)| (name, s / n)).collect()
         });
         let resumed = resume.as_ref().map(|(c, _, _)| c);
         Some(start_validation(
@@ -258,6 +315,84 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     drop(progress);
     ctx.ui.result(&summary.describe(&dest));
     Ok(())
+}
+
+/// The training maps of `--map` (each on the task's own ring) and `--maps` (a list file).
+fn training_maps(args: &TrainArgs) -> Result<Vec<TrainingMap>> {
+    let mut maps: Vec<TrainingMap> = args
+        .map
+        .iter()
+        .map(|path| TrainingMap {
+            path: path.clone(),
+            roundabout: None,
+        })
+        .collect();
+    let Some(list) = &args.maps else {
+        return Ok(maps);
+    };
+    let text = std::fs::read_to_string(list).map_err(|e| {
+        CliError::file(
+            list,
+            format!("cannot read: {e}"),
+            "give a readable list of maps",
+        )
+    })?;
+    let folder = list.parent().unwrap_or(std::path::Path::new("."));
+    for (n, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let mut words = line.split_whitespace();
+        let (Some(path), ring, None) = (words.next(), words.next(), words.next()) else {
+            return Err(CliError::file(
+                list,
+                format!(
+                    "line {}: expected `PATH [ROUNDABOUT]`, found {line:?}",
+                    n + 1
+                ),
+                "write one map per line, optionally followed by a roundabout id",
+            )
+            .into());
+        };
+        let roundabout = ring
+            .map(|r| {
+                r.parse::<u32>().map_err(|_| {
+                    CliError::file(
+                        list,
+                        format!("line {}: {r:?} is not a roundabout id", n + 1),
+                        "give the id `pipeline map info` lists",
+                    )
+                })
+            })
+            .transpose()?;
+        maps.push(TrainingMap {
+            path: folder.join(path),
+            roundabout,
+        });
+    }
+    if maps.is_empty() {
+        return Err(CliError::file(list, "lists no map", "write one map per line").into());
+    }
+    Ok(maps)
+}
+
+/// `config` on the ring `map` names (unchanged when it names none).
+fn on_ring<T: Task>(config: &T::Config, map: &TrainingMap) -> Result<T::Config> {
+    match map.roundabout {
+        None => Ok(config.clone()),
+        Some(id) => T::on_roundabout(config, id).ok_or_else(|| {
+            CliError::file(
+                &map.path,
+                format!(
+                    "a roundabout ({id}) is named, but {} drives on no roundabout",
+                    T::ID.info().title
+                ),
+                "leave the roundabout id out of the list",
+            )
+            .into()
+        }),
+    }
 }
 
 /// Refuses a run whose transitions all go to the warm-up: it would take no gradient step
