@@ -155,6 +155,16 @@ fn the_gaps_of_a_hand_built_approach_are_the_ones_built() {
         "{f1:?}"
     );
     assert_eq!(f1.upstream, 1);
+    // Crossing the line at another time accepts another gap: the one the crossing falls in,
+    // from the later of the arrival and the last pass (closed loop measures a policy so).
+    let m = &found.measured;
+    assert!(near(m.gap_at(0, 1, e.at_line_s, 5.0).unwrap(), 7.5, 0.12));
+    assert!(near(m.gap_at(0, 1, e.at_line_s, 12.0).unwrap(), 4.0, 0.02));
+    assert!(near(
+        m.gap_at(0, 1, e.at_line_s, e.crossed_s).unwrap(),
+        8.0,
+        0.02
+    ));
     // After the second pass at 14 s the third vehicle is not on the map yet.
     let f2 = &gaps[2].features;
     assert!(near(f2.eta_s, logs::traffic::measure::GAP_CAP_S, 1e-9) && f2.rejected_before == 2);

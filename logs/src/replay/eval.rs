@@ -241,6 +241,14 @@ fn drive_closed_loop(
             drive(map, &views.renderer, &log.frames, approach, config, policy),
         ) {
             tally.add(&episode);
+            if let Some(delay) = episode.entry_delay_s
+                && let (Some(gap), Some(driver)) = (
+                    log.accepted_gap(approach.track, delay),
+                    log.accepted_gap(approach.track, 0.0),
+                )
+            {
+                tally.add_gaps(gap, driver);
+            }
         }
     };
     for threshold in RULE_THRESHOLDS {

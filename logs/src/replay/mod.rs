@@ -21,12 +21,15 @@ pub mod report;
 pub mod tally;
 pub mod views;
 
+use std::collections::BTreeMap;
+
 use maps::Map;
 use sim::render::BevConfig;
 use sim::tasks::insertion::InsertionConfig;
 
 use crate::decisions::{Approach, LabelConfig, approaches};
 use crate::project::LogFrame;
+use crate::traffic::measure::{Measurements, RingGeometry, measure};
 
 pub use crate::decisions::nearest_circulating;
 pub use eval::{BC_AGGRESSIVENESS, BcExamples, Policies, RULE_THRESHOLDS, agent_goes, evaluate};
@@ -48,6 +51,20 @@ pub struct ReplayLog {
     pub name: String,
     pub frames: Vec<LogFrame>,
     pub approaches: Vec<Approach>,
+    /// The traffic measured at each of the map's roundabouts that can be measured.
+    pub rings: Vec<Measurements>,
+    /// Where each track entered a ring.
+    pub entered: BTreeMap<u32, Entered>,
+}
+
+/// Where a driver entered a ring, as the gap it accepted needs it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Entered {
+    /// Index into [`ReplayLog::rings`].
+    pub ring: usize,
+    pub entry: usize,
+    pub at_line_s: f64,
+    pub crossed_s: f64,
 }
 
 impl ReplayLog {
@@ -55,11 +72,40 @@ impl ReplayLog {
     /// `labels`.
     pub fn new(name: String, frames: Vec<LogFrame>, map: &Map, labels: &LabelConfig) -> Self {
         let approaches = approaches(map, &frames, labels);
+        let mut rings = Vec::new();
+        let mut entered = BTreeMap::new();
+        for &id in map.roundabouts.keys() {
+            let Ok(geometry) = RingGeometry::new(map, id) else {
+                continue;
+            };
+            let measured = measure(&geometry, &frames);
+            for e in &measured.entering {
+                entered.entry(e.track).or_insert(Entered {
+                    ring: rings.len(),
+                    entry: e.entry,
+                    at_line_s: e.at_line_s,
+                    crossed_s: e.crossed_s,
+                });
+            }
+            rings.push(measured);
+        }
         ReplayLog {
             name,
             frames,
             approaches,
+            rings,
+            entered,
         }
+    }
+
+    /// The gap `track`'s vehicle accepted crossing its line `delay_s` after its driver did
+    /// (0: the driver's own), measured as [`Measurements::gap_at`] does; None when the
+    /// track entered no ring or the log ends first.
+    pub fn accepted_gap(&self, track: u32, delay_s: f64) -> Option<f64> {
+        let e = self.entered.get(&track)?;
+        self.rings
+            .get(e.ring)?
+            .gap_at(e.entry, track, e.at_line_s, e.crossed_s + delay_s)
     }
 }
 

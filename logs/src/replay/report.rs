@@ -195,12 +195,12 @@ pub fn markdown(r: &Report) -> String {
     if !r.closed_loop.is_empty() {
         let _ = writeln!(
             md,
-            "\n## Closed loop\n\nEach policy drives every approach's vehicle along its driver's path from the approach's start; the other road users replay the log and cannot react (*rear-ended*: hit from behind by one of them). Divergence: mean distance to the driver's position at the same time.\n\n| policy | episodes | reached | crashed | rear-ended | time over | log divergence m | entry delay s |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"
+            "\n## Closed loop\n\nEach policy drives every approach's vehicle along its driver's path from the approach's start; the other road users replay the log and cannot react (*rear-ended*: hit from behind by one of them). Divergence: mean distance to the driver's position at the same time. Entry delay: its crossing of the yield line minus its driver's. Accepted gap: from the later of the driver's arrival at the line and the last conflicting pass before the crossing, to the next pass (as `replay gaps` measures it), beside the drivers' own on the same approaches; 95 % bootstrap intervals, and the paired bootstrap of the difference.\n\n| policy | episodes | reached | crashed | rear-ended | time over | log divergence m | entry delay s [95 %] | accepted gap s [95 %] | drivers' gap s | difference s [95 %], p |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"
         );
         for l in &r.closed_loop {
             let _ = writeln!(
                 md,
-                "| {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} |",
+                "| {} | {} | {:.1} % | {:.1} % | {:.1} % | {:.1} % | {:.2} | {} | {} | {} | {} |",
                 l.policy,
                 l.episodes,
                 100.0 * l.reached,
@@ -208,12 +208,34 @@ pub fn markdown(r: &Report) -> String {
                 100.0 * l.rear_ended,
                 100.0 * l.time_over,
                 l.mean_log_divergence_m,
-                l.mean_entry_delay_s
-                    .map_or("-".into(), |d| format!("{d:+.2}"))
+                with_interval(l.mean_entry_delay_s, l.entry_delay_ci95_s, true),
+                with_interval(l.mean_accepted_gap_s, l.accepted_gap_ci95_s, false),
+                with_interval(
+                    l.drivers_mean_accepted_gap_s,
+                    l.drivers_accepted_gap_ci95_s,
+                    false
+                ),
+                l.gap_against_drivers.map_or("-".into(), |d| format!(
+                    "{:+.2} [{:+.2}, {:+.2}], {}",
+                    d.difference,
+                    d.ci95.0,
+                    d.ci95.1,
+                    sim::eval::p_text(d.p_value)
+                )),
             );
         }
     }
     md
+}
+
+/// "1.23 [1.01, 1.45]" (signed with `signed`), "-" without a value.
+fn with_interval(value: Option<f64>, ci: Option<(f64, f64)>, signed: bool) -> String {
+    match (value, ci) {
+        (Some(v), Some((lo, hi))) if signed => format!("{v:+.2} [{lo:+.2}, {hi:+.2}]"),
+        (Some(v), Some((lo, hi))) => format!("{v:.2} [{lo:.2}, {hi:.2}]"),
+        (Some(v), None) => format!("{v:.2}"),
+        _ => "-".into(),
+    }
 }
 
 /// The open-loop part of replay.md.
@@ -232,7 +254,7 @@ fn open_loop_markdown(r: &Report) -> String {
     );
     let _ = writeln!(
         md,
-        "| policy | agreement | human go: policy go / wait | human wait: policy go / wait | mean go delay s |\n| --- | ---: | ---: | ---: | ---: |"
+        "The labels follow each driver's own speed (wait = stopped or braking to a stop): agreement says how often a policy moved when the driver did, not whether it judged the traffic as the driver did (`replay gaps` measures that). Intervals: 95 %, Wilson over frames, bootstrap over approaches for the delay.\n\n| policy | agreement [95 %] | human go: policy go / wait | human wait: policy go / wait | mean go delay s [95 %] |\n| --- | ---: | ---: | ---: | ---: |"
     );
     for s in &r.policies {
         let cell = |h: &str| {
@@ -242,12 +264,14 @@ fn open_loop_markdown(r: &Report) -> String {
         };
         let _ = writeln!(
             md,
-            "| {} | {:.1} % | {} | {} | {} |",
+            "| {} | {:.1} % [{:.1}, {:.1}] | {} | {} | {} |",
             s.policy,
             100.0 * s.agreement,
+            100.0 * s.agreement_ci95.0,
+            100.0 * s.agreement_ci95.1,
             cell("go"),
             cell("wait"),
-            s.mean_go_delay_s.map_or("-".into(), |d| format!("{d:+.2}"))
+            with_interval(s.mean_go_delay_s, s.go_delay_ci95_s, true)
         );
     }
     md

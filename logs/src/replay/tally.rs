@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
+use sim::stats::{PairedDifference, bootstrap_mean, paired_bootstrap};
 
 use crate::closed_loop::{ClosedLoopEpisode, ClosedLoopOutcome};
 use crate::decisions::{Approach, Decision};
@@ -24,6 +25,12 @@ pub struct LoopTally {
     pub divergences_m: Vec<f64>,
     /// Per episode that entered: its crossing of the yield line minus its driver's, s.
     pub entry_delays_s: Vec<f64>,
+    /// Per episode that entered where both are known: the gap it accepted, and the gap its
+    /// driver accepted, s (paired, in approach order).
+    #[serde(default)]
+    pub accepted_gaps_s: Vec<f64>,
+    #[serde(default)]
+    pub driver_gaps_s: Vec<f64>,
 }
 
 impl LoopTally {
@@ -46,6 +53,12 @@ impl LoopTally {
         self.entry_delays_s.extend(episode.entry_delay_s);
     }
 
+    /// Adds the gap one episode accepted beside its driver's.
+    pub fn add_gaps(&mut self, accepted_s: f64, driver_s: f64) {
+        self.accepted_gaps_s.push(accepted_s);
+        self.driver_gaps_s.push(driver_s);
+    }
+
     pub fn absorb(&mut self, other: &LoopTally) {
         self.episodes += other.episodes;
         self.reached += other.reached;
@@ -54,6 +67,9 @@ impl LoopTally {
         self.time_over += other.time_over;
         self.divergences_m.extend_from_slice(&other.divergences_m);
         self.entry_delays_s.extend_from_slice(&other.entry_delays_s);
+        self.accepted_gaps_s
+            .extend_from_slice(&other.accepted_gaps_s);
+        self.driver_gaps_s.extend_from_slice(&other.driver_gaps_s);
     }
 
     pub fn score(&self) -> LoopScore {
@@ -68,6 +84,14 @@ impl LoopTally {
             time_over: self.time_over as f64 / n,
             mean_log_divergence_m: mean(&self.divergences_m).unwrap_or(0.0),
             mean_entry_delay_s: mean(&self.entry_delays_s),
+            entry_delay_ci95_s: interval(&self.entry_delays_s),
+            mean_accepted_gap_s: mean(&self.accepted_gaps_s),
+            accepted_gap_ci95_s: interval(&self.accepted_gaps_s),
+            drivers_mean_accepted_gap_s: mean(&self.driver_gaps_s),
+            drivers_accepted_gap_ci95_s: interval(&self.driver_gaps_s),
+            gap_against_drivers: (!self.accepted_gaps_s.is_empty()).then(|| {
+                paired_bootstrap(&self.accepted_gaps_s, &self.driver_gaps_s, BOOTSTRAP, 0)
+            }),
         }
     }
 }
@@ -85,6 +109,24 @@ pub struct LoopScore {
     pub mean_log_divergence_m: f64,
     /// Mean over episodes that entered of the entry time minus the driver's, s.
     pub mean_entry_delay_s: Option<f64>,
+    /// Its 95 % bootstrap interval.
+    pub entry_delay_ci95_s: Option<(f64, f64)>,
+    /// Mean gap accepted (episodes that entered, where the gap is known), s, and its interval.
+    pub mean_accepted_gap_s: Option<f64>,
+    pub accepted_gap_ci95_s: Option<(f64, f64)>,
+    /// The drivers' own accepted gaps on the same approaches.
+    pub drivers_mean_accepted_gap_s: Option<f64>,
+    pub drivers_accepted_gap_ci95_s: Option<(f64, f64)>,
+    /// The policy's accepted gaps minus the drivers', paired by approach.
+    pub gap_against_drivers: Option<PairedDifference>,
+}
+
+/// Bootstrap replicates of the closed-loop intervals.
+const BOOTSTRAP: usize = 2000;
+
+/// The 95 % bootstrap interval of the mean of `xs` (None when empty).
+fn interval(xs: &[f64]) -> Option<(f64, f64)> {
+    (!xs.is_empty()).then(|| bootstrap_mean(xs, BOOTSTRAP, 0).ci95)
 }
 
 /// What one policy did, as counts that shards add up.
@@ -155,6 +197,8 @@ impl Tally {
         Score {
             policy: self.policy,
             agreement: m as f64 / n.max(1) as f64,
+            agreement_ci95: sim::stats::wilson(m, n),
+            go_delay_ci95_s: interval(&self.delays),
             confusion: self.confusion,
             per_log: self
                 .matches_per_log
@@ -173,6 +217,11 @@ pub struct Score {
     pub policy: String,
     /// Of the go and wait frames, the share where the policy decided as the driver did.
     pub agreement: f64,
+    /// Its 95 % Wilson interval over frames (frames of one approach are not independent:
+    /// an interval over approaches would be wider).
+    pub agreement_ci95: (f64, f64),
+    /// 95 % bootstrap interval of `mean_go_delay_s`.
+    pub go_delay_ci95_s: Option<(f64, f64)>,
     /// `confusion[human][policy]`, human and policy each `go` or `wait`.
     pub confusion: BTreeMap<String, BTreeMap<String, u64>>,
     /// Per log: agreement.

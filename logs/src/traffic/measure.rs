@@ -244,6 +244,35 @@ pub struct Measurements {
     /// Per entry: its merge angle round the centre, rad (see the module docs).
     #[serde(default)]
     pub merge_angles: Vec<f64>,
+    /// Per entry: every pass of its merge point (time s, track), in time order.
+    #[serde(default, skip_serializing)]
+    pub passes: Vec<Vec<(f64, u32)>>,
+}
+
+impl Measurements {
+    /// The gap a driver entering at `entry` (its track `track`, at its line from
+    /// `at_line_s`) accepted by crossing its line at `crossed_s`: from the later of its
+    /// arrival and the last pass before, to the first pass after, capped at [`GAP_CAP_S`];
+    /// None when the recording ends first (unless the cap is reached).
+    pub fn gap_at(&self, entry: usize, track: u32, at_line_s: f64, crossed_s: f64) -> Option<f64> {
+        let passes: Vec<f64> = self
+            .passes
+            .get(entry)?
+            .iter()
+            .filter(|(_, id)| *id != track)
+            .map(|(t, _)| *t)
+            .collect();
+        let start = passes
+            .iter()
+            .copied()
+            .filter(|&t| t <= crossed_s)
+            .fold(at_line_s, f64::max);
+        match passes.iter().find(|&&t| t > crossed_s) {
+            Some(&end) => Some((end - start).min(GAP_CAP_S)),
+            None if self.duration_s - start >= GAP_CAP_S => Some(GAP_CAP_S),
+            None => None,
+        }
+    }
 }
 
 /// The share of the road users' positions in `frames` (every tenth frame) that lie within
@@ -437,6 +466,7 @@ pub fn measure(geometry: &RingGeometry, frames: &[LogFrame]) -> Measurements {
         entries_crossed,
         per_minute,
         merge_angles,
+        passes,
     }
 }
 
