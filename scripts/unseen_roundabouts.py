@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
 """Roundabout insertion judged on roundabouts never trained or tuned on (Python 3 stdlib only).
 
-Training set: montlake (bundled), tiny_roundabout, INTERACTION FT and the even-numbered rings
-of the Andorra extract. Evaluation set: Andorra's odd-numbered rings, Campo Grande, Krems and
-the INTERACTION EP, SR, LN and OF maps. The world is the calibrated one (`calibration =` in the
+Training set (configs/insertion_rings_train.txt): montlake (bundled), tiny_roundabout, INTERACTION
+FT and the even-numbered rings of the Andorra extract. Evaluation set
+(configs/insertion_rings_eval.txt): Andorra's odd-numbered rings, Campo Grande, Krems and the
+INTERACTION EP, SR, LN and OF maps. The world is the calibrated one (`calibration =` in the
 recipe), at capacity-based traffic levels.
 
-For each seed S: `agent train --maps WORK/train_maps.txt --seed S` with the recipe (its
+For each seed S: `agent train --maps configs/insertion_rings_train.txt --seed S` with the recipe (its
 checkpoints chosen by validation episodes on the training rings only), then `agent eval --seed S`
 on every evaluation ring beside the baselines (the same episodes for every policy). Finished
 trainings and evaluations are reused.
@@ -27,22 +28,23 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT.parent / "shared/data"
-ANDORRA = DATA / "osm/roundabouts/andorra.osm.pbf"
-INTERACTION = DATA / "trajectories/interaction/maps"
-# Rings of the Andorra extract that the task can set up (23 has no entry with a reachable exit).
-ANDORRA_RINGS = [r for r in range(42) if r != 23]
-TRAIN = [(ROOT / "data/osm/montlake_roundabout.osm.pbf", None),
-         (DATA / "osm/tiny_roundabout.osm", None),
-         (INTERACTION / "DR_USA_Roundabout_FT.osm", None)] + [
-    (ANDORRA, r) for r in ANDORRA_RINGS if r % 2 == 0]
-EVAL = [(ANDORRA, r) for r in ANDORRA_RINGS if r % 2 == 1] + [
-    (DATA / "osm/roundabouts/campo-grande.osm.gz", None),
-    (DATA / "osm/roundabouts/krems.osm.gz", None),
-    (INTERACTION / "DR_USA_Roundabout_EP.osm", None),
-    (INTERACTION / "DR_USA_Roundabout_SR.osm", None),
-    (INTERACTION / "DR_CHN_Roundabout_LN.osm", None),
-    (INTERACTION / "DR_DEU_Roundabout_OF.osm", None)]
+TRAIN_LIST = ROOT / "configs/insertion_rings_train.txt"
+EVAL_LIST = ROOT / "configs/insertion_rings_eval.txt"
+
+
+def read_list(path):
+    """(path, ring or None) per line of a `--maps` list, paths from the list's folder."""
+    out = []
+    for line in path.read_text().splitlines():
+        line = line.split("#")[0].strip()
+        if line:
+            words = line.split()
+            out.append(((path.parent / words[0]).resolve(), int(words[1]) if len(words) > 1 else None))
+    return out
+
+
+TRAIN = read_list(TRAIN_LIST)
+EVAL = read_list(EVAL_LIST)
 T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571}
 
 
@@ -90,8 +92,7 @@ def main():
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     args.work.mkdir(parents=True, exist_ok=True)
-    listing = args.work / "train_maps.txt"
-    listing.write_text("".join(f"{p} {'' if r is None else r}\n" for p, r in TRAIN))
+    listing = TRAIN_LIST
 
     per = {}  # (seed, eval name) -> eval.json
     for seed in seeds:

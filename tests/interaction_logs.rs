@@ -372,6 +372,37 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     assert_eq!(driven.len(), 2, "{r}");
     assert!(driven[0]["episodes"].as_u64().unwrap() > 0, "{r}");
     assert_eq!(driven[0], driven[1]);
+    // Every policy that entered took a gap, beside its drivers' own, each in its interval;
+    // always go enters no later than the drivers on average (it never waits).
+    for p in r["closed_loop"].as_array().unwrap() {
+        let (Some(gap), Some(drivers)) = (
+            p["mean_accepted_gap_s"].as_f64(),
+            p["drivers_mean_accepted_gap_s"].as_f64(),
+        ) else {
+            continue;
+        };
+        let ci = &p["accepted_gap_ci95_s"];
+        assert!(
+            ci[0].as_f64().unwrap() <= gap && gap <= ci[1].as_f64().unwrap(),
+            "{p}"
+        );
+        assert!(
+            (0.0..=12.0).contains(&gap) && (0.0..=12.0).contains(&drivers),
+            "{p}"
+        );
+        let d = p["gap_against_drivers"]["difference"].as_f64().unwrap();
+        assert!((d - (gap - drivers)).abs() < 1e-9, "{p}");
+    }
+    let always = r["closed_loop"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["policy"] == "always go")
+        .unwrap();
+    assert!(
+        always["mean_entry_delay_s"].as_f64().unwrap() <= 0.0,
+        "{always}"
+    );
 
     // In the simulator, on the same map.
     let eval = tmp.path().join("eval");
