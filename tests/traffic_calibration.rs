@@ -299,4 +299,22 @@ fn replay_gaps_scores_the_policies_on_held_out_gaps() {
         &refused,
     );
     assert!(stderr(&done).contains("ft_002.mcap"), "{}", stderr(&done));
+
+    // A training map without training recordings is refused.
+    let done = pipeline()
+        .args(["--rerun", "off", "replay", "gaps", "--map"])
+        .arg(&map)
+        .arg("--train-map")
+        .arg(&map)
+        .arg("--log")
+        .arg(&logs[2])
+        .arg("--out")
+        .arg(&refused)
+        .output()
+        .unwrap();
+    assert_refused(
+        &done,
+        "--train-map names the map of --train-log recordings",
+        &refused,
+    );
 }

@@ -27,6 +27,13 @@ const MARKERS: Markers = &[GAPS_JSON];
 pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
     let out = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out, MARKERS)?;
+    if args.train_map.is_some() && args.train_logs.is_empty() {
+        return Err(CliError::new(
+            "--train-map names the map of --train-log recordings, and none is given",
+            "add --train-log recordings made on that map, or leave --train-map out",
+        )
+        .into());
+    }
     if let Some(both) = args.train_logs.iter().find(|t| args.logs.contains(t)) {
         return Err(CliError::file(
             both,
