@@ -55,7 +55,8 @@ def gaps(pipeline, out, logs, train, place, train_map=None):
 def pooled(rows, seed=0, replicates=2000):
     """Per policy: accuracy, balanced accuracy, their intervals, paired difference to the
     reference, over approaches (recording, track) resampled together."""
-    policies = [c for c in rows[0] if c not in FIELDS]
+    columns = list(rows[0])
+    policies = columns[columns.index("rejected_before") + 1:]  # after the last feature
     clusters = defaultdict(list)
     for r in rows:
         clusters[(r["recording"], r["track"])].append(r)
@@ -100,11 +101,7 @@ def pooled(rows, seed=0, replicates=2000):
     return out
 
 
-FIELDS = None
-
-
 def main():
-    global FIELDS
     ap = argparse.ArgumentParser()
     ap.add_argument("--pipeline", default="target/release/pipeline")
     ap.add_argument("--work", default="/tmp/gap_folds", type=Path)
@@ -119,10 +116,6 @@ def main():
         folds.append(rows)
     ep_rows = gaps(args.pipeline, args.work / "ep_from_ft", ep, ft, "EP",
                    DATA / "maps/DR_USA_Roundabout_FT.osm")
-    FIELDS = ["recording", "track", "entry", "index", "offered_s", "length_s", "accepted"] + [
-        c for c in folds[0][0] if c not in ("recording", "track", "entry", "index", "offered_s",
-                                            "length_s", "accepted") and not any(
-            c.startswith(p) for p in ("critical gap", "rule ", "always", "behaviour", "agent"))]
     ft_rows = [r for rows in folds for r in rows]
     result = {"ft_leave_one_out": pooled(ft_rows), "ep_from_ft": pooled(ep_rows),
               "offered": {"ft": len(ft_rows), "ep": len(ep_rows)},

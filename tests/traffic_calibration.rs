@@ -42,18 +42,23 @@ fn ft_tracks(base: &Path, n: u32) -> PathBuf {
     ))
 }
 
+/// FT recordings 000 to `n` − 1 converted into `dir`.
+fn ft_logs(base: &Path, map: &Path, dir: &Path, n: u32) -> Vec<PathBuf> {
+    (0..n)
+        .map(|k| {
+            let log = dir.join(format!("ft_{k:03}.mcap"));
+            convert(&ft_tracks(base, k), map, &log);
+            log
+        })
+        .collect()
+}
+
 #[test]
 fn calibration_feeds_the_realism_report() {
     let Some(base) = interaction() else { return };
     let map = base.join("maps/DR_USA_Roundabout_FT.osm");
     let tmp = tempfile::tempdir().unwrap();
-    let logs: Vec<PathBuf> = (0..3)
-        .map(|n| {
-            let log = tmp.path().join(format!("ft_{n:03}.mcap"));
-            convert(&ft_tracks(&base, n), &map, &log);
-            log
-        })
-        .collect();
+    let logs = ft_logs(&base, &map, tmp.path(), 3);
     let calib = tmp.path().join("calib.toml");
     let out = pipeline()
         .args(["--rerun", "off", "sim", "calibrate", "--no-refine", "--map"])
@@ -212,13 +217,7 @@ fn replay_gaps_scores_the_policies_on_held_out_gaps() {
     let Some(base) = interaction() else { return };
     let map = base.join("maps/DR_USA_Roundabout_FT.osm");
     let tmp = tempfile::tempdir().unwrap();
-    let logs: Vec<PathBuf> = (0..3)
-        .map(|n| {
-            let log = tmp.path().join(format!("ft_{n:03}.mcap"));
-            convert(&ft_tracks(&base, n), &map, &log);
-            log
-        })
-        .collect();
+    let logs = ft_logs(&base, &map, tmp.path(), 3);
     let out_dir = tmp.path().join("gaps");
     let run = |out: &Path, train: &[&PathBuf]| {
         let mut cmd = pipeline();

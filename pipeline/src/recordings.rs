@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
+use clap::Args;
 use logs::decode::read_decoded;
 use logs::project::{LogFrame, log_frames};
 use logs::source::{Log, ReadOptions};
@@ -13,6 +14,24 @@ use maps::{Map, RoundaboutId};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::log_args::{RoleArgs, log_error, objects_topic};
+
+/// The recordings of a roundabout and their map, as the commands that measure them take them.
+#[derive(Debug, Args)]
+pub struct Recordings {
+    /// A recording (MCAP from `logs convert`, or any log with object detections); repeat
+    /// for several.
+    #[arg(long = "log", value_name = "FILE", required = true)]
+    pub logs: Vec<PathBuf>,
+
+    /// The map the recordings were made on (a Lanelet2 / OSM file or an imported map).
+    #[arg(long, value_name = "PATH")]
+    pub map: PathBuf,
+
+    /// The roundabout of the map (its id, as `map info` lists them) [default: the one the
+    /// recorded vehicles enter most].
+    #[arg(long, value_name = "ID")]
+    pub roundabout: Option<u32>,
+}
 
 /// A recording's object frames.
 pub fn read_frames(ctx: &Context<'_>, path: &Path) -> Result<Vec<LogFrame>> {

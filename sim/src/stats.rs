@@ -102,17 +102,8 @@ pub fn bootstrap_mean(xs: &[f64], replicates: usize, seed: u64) -> Interval {
             ci95: (f64::NAN, f64::NAN),
         };
     }
-    let mean = |ys: &[f64]| ys.iter().sum::<f64>() / ys.len() as f64;
-    let value = mean(xs);
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut means: Vec<f64> = (0..replicates)
-        .map(|_| {
-            let s: f64 = (0..xs.len())
-                .map(|_| xs[rng.random_range(0..xs.len())])
-                .sum();
-            s / xs.len() as f64
-        })
-        .collect();
+    let value = xs.iter().sum::<f64>() / xs.len() as f64;
+    let mut means = resampled_means(xs, replicates, seed);
     Interval {
         value,
         ci95: percentile_interval(&mut means, value),
@@ -139,30 +130,40 @@ pub fn paired_bootstrap(
     seed: u64,
 ) -> PairedDifference {
     let d: Vec<f64> = first.iter().zip(second).map(|(a, b)| a - b).collect();
-    let Interval { value, ci95 } = bootstrap_mean(&d, replicates, seed);
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let (mut below, mut above) = (0usize, 0usize);
-    if !d.is_empty() {
-        for _ in 0..replicates {
-            let s: f64 = (0..d.len()).map(|_| d[rng.random_range(0..d.len())]).sum();
-            if s <= 0.0 {
-                below += 1;
-            }
-            if s >= 0.0 {
-                above += 1;
-            }
-        }
+    if d.is_empty() {
+        return PairedDifference {
+            difference: f64::NAN,
+            ci95: (f64::NAN, f64::NAN),
+            p_value: 1.0,
+        };
     }
-    let p_value = if d.is_empty() || replicates == 0 || d.iter().all(|&x| x == 0.0) {
+    let difference = d.iter().sum::<f64>() / d.len() as f64;
+    let mut means = resampled_means(&d, replicates, seed);
+    let below = means.iter().filter(|&&m| m <= 0.0).count();
+    let above = means.iter().filter(|&&m| m >= 0.0).count();
+    let p_value = if replicates == 0 || d.iter().all(|&x| x == 0.0) {
         1.0
     } else {
         (2.0 * below.min(above).max(1) as f64 / replicates as f64).min(1.0)
     };
     PairedDifference {
-        difference: value,
-        ci95,
+        difference,
+        ci95: percentile_interval(&mut means, difference),
         p_value,
     }
+}
+
+/// The means of `replicates` resamples of `xs` (with replacement, ChaCha8 seeded by `seed`).
+fn resampled_means(xs: &[f64], replicates: usize, seed: u64) -> Vec<f64> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..replicates)
+        .map(|_| {
+            let s: f64 = (0..xs.len())
+                .map(|_| xs[rng.random_range(0..xs.len())])
+                .sum();
+            s / xs.len() as f64
+        })
+        .collect()
 }
 
 /// 2.5 / 97.5 percentiles of `xs` (sorted in place, linear interpolation); `point` twice

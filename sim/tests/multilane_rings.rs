@@ -338,26 +338,14 @@ fn assert_clean(f: &Figures) {
     assert_eq!(f.wrong_exits, 0, "wrong exits: {f:?}");
 }
 
-/// The 95 % Wilson interval of `k` successes in `n` trials, in percent.
-fn wilson(k: u64, n: u64) -> (f64, f64) {
-    if n == 0 {
-        return (0.0, 100.0);
-    }
-    let (k, n, z) = (k as f64, n as f64, 1.96f64);
-    let p = k / n;
-    let centre = (p + z * z / (2.0 * n)) / (1.0 + z * z / n);
-    let half = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / (1.0 + z * z / n);
-    (
-        100.0 * (centre - half).max(0.0),
-        100.0 * (centre + half).min(1.0),
-    )
-}
-
+/// `k` of `n` in percent with its 95 % Wilson interval.
 fn share(k: u64, n: u64) -> String {
-    let (lo, hi) = wilson(k, n);
+    let (lo, hi) = sim::stats::wilson(k, n);
     format!(
-        "{:.1} % [{lo:.1}, {hi:.1}]",
-        100.0 * k as f64 / n.max(1) as f64
+        "{:.1} % [{:.1}, {:.1}]",
+        100.0 * k as f64 / n.max(1) as f64,
+        100.0 * lo,
+        100.0 * hi
     )
 }
 

@@ -252,7 +252,7 @@ impl Logistic {
         if positives == 0 || positives == n {
             return None;
         }
-        let xs: Vec<[f64; 16]> = gaps.iter().map(|g| g.features.vector()).collect();
+        let xs: Vec<_> = gaps.iter().map(|g| g.features.vector()).collect();
         let d = Features::NAMES.len();
         let mut mean = vec![0.0; d];
         for x in &xs {

@@ -193,13 +193,8 @@ pub fn score(
                     .iter()
                     .map(|r| replicate(r, &accepts).0 - replicate(r, &ref_accepts).0)
                     .collect();
-                let difference = confusion.accuracy() - {
-                    let mut c = Confusion::default();
-                    for (g, d) in gaps.iter().zip(ref_ds) {
-                        c.add(g.accepted, d.accept);
-                    }
-                    c.accuracy()
-                };
+                let right = |c: &[bool]| c.iter().filter(|&&x| x).count() as f64;
+                let difference = (right(&correct) - right(&ref_correct)) / gaps.len().max(1) as f64;
                 let below = diffs.iter().filter(|&&d| d <= 0.0).count();
                 let above = diffs.iter().filter(|&&d| d >= 0.0).count();
                 let same = correct == ref_correct;

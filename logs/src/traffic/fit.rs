@@ -8,6 +8,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+use sim::stats::percentile_interval;
 use statrs::function::erf::{erfc, erfc_inv};
 use std::collections::BTreeMap;
 
@@ -371,15 +372,6 @@ fn gap_stats(theta: &[f64]) -> (f64, f64, f64) {
     (mu.exp(), (mu + 0.5 * sigma * sigma).exp(), sigma)
 }
 
-/// 2.5 / 97.5 percentiles of `xs` (sorted in place); `point` when empty.
-fn ci95(xs: &mut [f64], point: f64) -> (f64, f64) {
-    if xs.is_empty() {
-        return (point, point);
-    }
-    xs.sort_by(f64::total_cmp);
-    (quantile(xs, 0.025), quantile(xs, 0.975))
-}
-
 /// Fits a lognormal critical-gap distribution by Troutbeck's maximum likelihood,
 /// with a percentile bootstrap over drivers (`bootstrap` replicates, ChaCha8 seeded
 /// by `seed`; 0 gives intervals equal to the point estimate).
@@ -489,9 +481,9 @@ pub fn fit_critical_gap(
         mean_s,
         sd_s,
         median_s,
-        median_ci95_s: ci95(&mut medians, median_s),
-        mean_ci95_s: ci95(&mut means, mean_s),
-        sigma_ci95: ci95(&mut sigmas, sigma),
+        median_ci95_s: percentile_interval(&mut medians, median_s),
+        mean_ci95_s: percentile_interval(&mut means, mean_s),
+        sigma_ci95: percentile_interval(&mut sigmas, sigma),
         drivers,
         with_rejections,
         inconsistent,
@@ -732,7 +724,7 @@ pub fn fit_idm(
     }
     let mut ci = [(0.0, 0.0); 4];
     for k in 0..4 {
-        ci[k] = ci95(&mut reps[k], p[k]);
+        ci[k] = percentile_interval(&mut reps[k], p[k]);
     }
     Ok(IdmFit {
         max_accel_mps2: p[0],

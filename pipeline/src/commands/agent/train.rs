@@ -127,18 +127,15 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         super::eval::require_recorded(ctx, first_map.as_deref())?;
     }
 
-    // One setup per training map (and ring); the first also records and validates alone.
-    let mut setups = Vec::with_capacity(maps.len().max(1));
-    for m in &maps {
-        progress.step(&format!("loading {}", m.path.display()));
-        setups.push(crate::tasks::setup::<T>(
-            Some(&m.path),
-            &on_ring::<T>(&task_config, m)?,
-        )?);
+    // One setup per training map (and ring); the first also records the greedy episodes.
+    if let Some(first) = &first_map {
+        progress.step(&format!(
+            "loading {} and {} more map(s)",
+            first.display(),
+            maps.len() - 1
+        ));
     }
-    if setups.is_empty() {
-        setups.push(crate::tasks::setup::<T>(None, &task_config)?);
-    }
+    let setups = setups_of::<T>(&maps, &task_config)?;
     let setup = Arc::clone(&setups[0]);
     let envs: Vec<Rotating<T>> = (0..dqn.envs)
         .map(|_| Rotating::new(setups.iter().map(|s| T::training_env(s, traffic)).collect()))
@@ -173,15 +170,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
                         "leave action_repeat out of [agent.validation]",
                     )
                 })?;
-                if maps.is_empty() {
-                    vec![crate::tasks::setup::<T>(None, &config)?]
-                } else {
-                    maps.iter()
-                        .map(|m| {
-                            crate::tasks::setup::<T>(Some(&m.path), &on_ring::<T>(&config, m)?)
-                        })
-                        .collect::<Result<Vec<_>>>()?
-                }
+                setups_of::<T>(&maps, &config)?
             }
             None => setups.clone(),
         };
@@ -375,6 +364,17 @@ fn training_maps(args: &TrainArgs) -> Result<Vec<TrainingMap>> {
         return Err(CliError::file(list, "lists no map", "write one map per line").into());
     }
     Ok(maps)
+}
+
+/// Task `T` with `config` set up on each training map (on its ring), or once without a map
+/// when there is none.
+fn setups_of<T: Task>(maps: &[TrainingMap], config: &T::Config) -> Result<Vec<Arc<T::Setup>>> {
+    if maps.is_empty() {
+        return Ok(vec![crate::tasks::setup::<T>(None, config)?]);
+    }
+    maps.iter()
+        .map(|m| crate::tasks::setup::<T>(Some(&m.path), &on_ring::<T>(config, m)?))
+        .collect()
 }
 
 /// `config` on the ring `map` names (unchanged when it names none).

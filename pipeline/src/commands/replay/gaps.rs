@@ -25,6 +25,7 @@ pub const GAPS_CSV: &str = "gaps.csv";
 const MARKERS: Markers = &[GAPS_JSON];
 
 pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
+    let r = &args.recordings;
     let out = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out, MARKERS)?;
     if args.train_map.is_some() && args.train_logs.is_empty() {
@@ -34,7 +35,7 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
         )
         .into());
     }
-    if let Some(both) = args.train_logs.iter().find(|t| args.logs.contains(t)) {
+    if let Some(both) = args.train_logs.iter().find(|t| r.logs.contains(t)) {
         return Err(CliError::file(
             both,
             "is given both to score (--log) and to fit on (--train-log)",
@@ -46,18 +47,18 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
     // recordings of another map (--train-map) at that map's ring.
     let same_map = args.train_map.is_none();
     let all: Vec<_> = if same_map {
-        args.logs.iter().chain(&args.train_logs).cloned().collect()
+        r.logs.iter().chain(&args.train_logs).cloned().collect()
     } else {
-        args.logs.clone()
+        r.logs.clone()
     };
-    let measured = measure_recordings(ctx, &args.map, args.roundabout, &all, "replay gaps")?;
+    let measured = measure_recordings(ctx, &r.map, r.roundabout, &all, "replay gaps")?;
     let mut recordings = recordings_gaps(&measured, &all);
     if let (Some(train_map), false) = (&args.train_map, args.train_logs.is_empty()) {
         let other = measure_recordings(ctx, train_map, None, &args.train_logs, "replay gaps")?;
         recordings.extend(recordings_gaps(&other, &args.train_logs));
     }
     let mut progress = ctx.ui.progress("replay gaps");
-    let (scored, train) = recordings.split_at(args.logs.len());
+    let (scored, train) = recordings.split_at(r.logs.len());
     let gaps: Vec<OfferedGap> = scored.iter().flat_map(|r| r.gaps.clone()).collect();
     if gaps.is_empty() {
         return Err(CliError::new(
@@ -96,7 +97,7 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
         progress.step(&format!("the agent {}", dir.display()));
         let device = models::cpu_device();
         let (policy, task) = load_replay_agent(dir, &device, &mut |s| progress.note(s))?;
-        let views = replay_views(&measured.map, &args.map, task, args.target_speed)?;
+        let views = replay_views(&measured.map, &r.map, task, args.target_speed)?;
         let labels = ctx.config.logs.decisions.clone();
         let mut agent: Vec<GapDecision> = Vec::with_capacity(gaps.len());
         for (recording, frames) in scored.iter().zip(&measured.frames) {

@@ -43,19 +43,9 @@ pub enum ReplayCommand {
 
 #[derive(Debug, Args)]
 pub struct GapsArgs {
-    /// A recording to score (MCAP from `logs convert`, or any log with object detections);
-    /// repeat for several.
-    #[arg(long = "log", value_name = "FILE", required = true)]
-    pub logs: Vec<PathBuf>,
-
-    /// The map the recordings were made on (a Lanelet2 / OSM file or an imported map).
-    #[arg(long, value_name = "PATH")]
-    pub map: PathBuf,
-
-    /// The roundabout of the map (its id, as `map info` lists them) [default: the one the
-    /// recorded vehicles enter most].
-    #[arg(long, value_name = "ID")]
-    pub roundabout: Option<u32>,
+    /// The recordings to score, their map and roundabout.
+    #[command(flatten)]
+    pub recordings: crate::recordings::Recordings,
 
     /// Recordings to fit the critical gaps and behaviour cloning on (never a scored one);
     /// repeat for several. Without them only the distance rules and always accept are

@@ -12,7 +12,7 @@ use anyhow::Result;
 use clap::{Args, Subcommand};
 
 use super::Context;
-use crate::recordings::{Measured, measure_recordings};
+use crate::recordings::{Measured, Recordings, measure_recordings};
 
 #[derive(Debug, Subcommand)]
 pub enum SimCommand {
@@ -23,24 +23,6 @@ pub enum SimCommand {
     /// Run the world on the recordings' roundabout with their own flows and compare it with
     /// them metric by metric: realism.json, realism.md and one plot per metric.
     Realism(RealismArgs),
-}
-
-/// The recordings and their map, as both commands take them.
-#[derive(Debug, Args)]
-pub struct Recordings {
-    /// A recording (MCAP from `logs convert`, or any log with object detections); repeat
-    /// for several.
-    #[arg(long = "log", value_name = "FILE", required = true)]
-    pub logs: Vec<PathBuf>,
-
-    /// The map the recordings were made on (a Lanelet2 / OSM file or an imported map).
-    #[arg(long, value_name = "PATH")]
-    pub map: PathBuf,
-
-    /// The roundabout of the map (its id, as `map info` lists them) [default: the one the
-    /// recorded vehicles enter most].
-    #[arg(long, value_name = "ID")]
-    pub roundabout: Option<u32>,
 }
 
 #[derive(Debug, Args)]
