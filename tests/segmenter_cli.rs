@@ -4,7 +4,8 @@
 //! confusion.png; `predict` treats an unreadable image as `dataset import` treats a broken
 //! item; off a terminal, progress is a few lines per command, not one per step; `dataset
 //! check` says an expected mix of sources once, in words; `dataset import` with a missing
-//! folder says what to give. Needs no shared data.
+//! folder says what to give; without --model, `eval` (on a test split, with intervals over
+//! images) and `predict` use the shipped model. Needs no shared data.
 
 #![allow(clippy::unwrap_used, clippy::print_stdout)]
 
@@ -194,6 +195,139 @@ fn train_eval_predict_on_a_tiny_set() {
     );
     assert!(stderr(&out).contains("broken.png"), "{}", stderr(&out));
     assert!(labels.join("labels/good.png").is_file());
+}
+
+/// Without --model, `eval` and `predict` use the model shipped in the binary at its trained
+/// short side; `eval --split test` evaluates the test split `dataset split --test` wrote, with
+/// 95 % intervals over the images that are the same on every run.
+#[test]
+fn the_shipped_model_evaluates_a_test_split_and_labels_images() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = generate(tmp.path(), 12);
+    let eval = |out: &Path| {
+        pipeline([
+            "segmenter".as_ref(),
+            "eval".as_ref(),
+            "--data".as_ref(),
+            data.as_os_str(),
+            "--split".as_ref(),
+            "test".as_ref(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ])
+    };
+    // `generate` split it 70 / 30: no test items yet.
+    let refused = tmp.path().join("refused");
+    let out = eval(&refused);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("has no items in the test split"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!refused.exists());
+    let split = pipeline([
+        "dataset".as_ref(),
+        "split".as_ref(),
+        data.as_os_str(),
+        "--train".as_ref(),
+        "0.5".as_ref(),
+        "--val".as_ref(),
+        "0.25".as_ref(),
+        "--test".as_ref(),
+        "0.25".as_ref(),
+    ]);
+    assert_success(&split, "dataset split --test");
+    let manifest = std::fs::read_to_string(data.join("manifest.jsonl")).unwrap();
+    let tests = manifest
+        .lines()
+        .filter(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["split"] == "test")
+        .count();
+    assert!((1..12).contains(&tests), "{manifest}");
+
+    let first = tmp.path().join("eval");
+    let out = eval(&first);
+    assert_success(&out, "segmenter eval --split test (shipped model)");
+    let m = common::read_json(&first.join("metrics.json"));
+    assert_eq!(m["model"], "shipped");
+    assert_eq!(m["split"], "test");
+    assert_eq!(m["images"], tests);
+    let short = models::segmenter::shipped::shipped_short_side().unwrap();
+    assert_eq!(m["size"], short);
+    // The interval holds the figure, for mIoU and every class with a figure, overall and
+    // per dataset; the per-image matrices stay out.
+    let inside = |value: &serde_json::Value, interval: &serde_json::Value| {
+        let (v, lo, hi) = (
+            value.as_f64().unwrap(),
+            interval[0].as_f64().unwrap(),
+            interval[1].as_f64().unwrap(),
+        );
+        assert!(lo <= v && v <= hi, "{v} outside [{lo}, {hi}]");
+    };
+    let datasets = m["per_dataset"].as_object().unwrap();
+    assert_eq!(datasets.len(), 1);
+    let dataset = &datasets["generated12"];
+    for figures in [&m, dataset] {
+        inside(&figures["miou"], &figures["ci95"]["miou"]);
+        let classes = figures["per_class_iou"].as_object().unwrap();
+        assert!(!classes.is_empty());
+        for (class, iou) in classes {
+            inside(iou, &figures["ci95"]["per_class_iou"][class]);
+        }
+        assert_eq!(
+            figures["ci95"]["per_class_iou"].as_object().unwrap().len(),
+            classes.len()
+        );
+    }
+    let text = std::fs::read_to_string(first.join("metrics.json")).unwrap();
+    assert!(!text.contains("per_image"), "{text}");
+    let report = std::fs::read_to_string(first.join("report.md")).unwrap();
+    assert!(report.contains("The shipped model"), "{report}");
+    assert!(report.contains("of the `test` split"), "{report}");
+    let ci = &m["ci95"]["miou"];
+    let miou = format!(
+        "{:.4} [{:.4}, {:.4}]",
+        m["miou"].as_f64().unwrap(),
+        ci[0].as_f64().unwrap(),
+        ci[1].as_f64().unwrap()
+    );
+    assert!(
+        report.contains(&format!("| mIoU | {miou} |")),
+        "{miou}\n{report}"
+    );
+    assert!(
+        stdout(&out).starts_with(&format!("mIoU {miou}, ")),
+        "{}",
+        stdout(&out)
+    );
+    // The same intervals on another run.
+    let second = tmp.path().join("eval2");
+    assert_success(&eval(&second), "segmenter eval again");
+    assert_eq!(
+        std::fs::read(second.join("metrics.json")).unwrap(),
+        text.as_bytes()
+    );
+
+    // predict without --model: a label of each image's size, of class ids.
+    let labels = tmp.path().join("predicted");
+    let out = pipeline([
+        "segmenter".as_ref(),
+        "predict".as_ref(),
+        data.join("images").as_os_str(),
+        "--out".as_ref(),
+        labels.as_os_str(),
+    ]);
+    assert_success(&out, "segmenter predict (shipped model)");
+    let written = common::entries(&labels.join("labels"));
+    assert_eq!(written.len(), 12, "{written:?}");
+    for name in &written {
+        let label = image::open(labels.join("labels").join(name))
+            .unwrap()
+            .to_luma8();
+        let image = image::open(data.join("images").join(name)).unwrap();
+        assert_eq!(label.dimensions(), (image.width(), image.height()));
+        assert!(label.pixels().all(|p| p[0] < 5), "{name}");
+    }
 }
 
 #[test]

@@ -2,7 +2,8 @@
 //! with sampling weights), their items loaded, augmented on the fly and batched.
 //!
 //! - Train items are those whose manifest `split` is `train`, or every item when the
-//!   manifest has no split at all; validation items are those with split `val`.
+//!   manifest has no split at all; validation items are those with split `val`, test items
+//!   (for evaluation only) those with split `test`.
 //! - An epoch draws `samples_per_epoch` items: a source by its weight, then the next item
 //!   of that source's shuffled order (reshuffled when used up). The draws come from a
 //!   generator seeded by (seed, epoch), so the order is the same on every run and after a
@@ -85,6 +86,8 @@ pub enum Split {
     Train,
     /// `split == "val"`.
     Val,
+    /// `split == "test"` (`dataset split --test`, `dataset import camvid`).
+    Test,
     /// Every item.
     All,
 }
@@ -98,6 +101,7 @@ impl Source {
             Split::All => true,
             Split::Train => !has_splits || item.split.as_deref() == Some("train"),
             Split::Val => item.split.as_deref() == Some("val"),
+            Split::Test => item.split.as_deref() == Some("test"),
         };
         let items = (0..dataset.items.len())
             .filter(|&i| wanted(&dataset.items[i]))
@@ -362,6 +366,43 @@ mod tests {
         assert!(SourceSpec::parse("a:0").is_err());
         // A colon in a path without a number after it is part of the path.
         assert_eq!(SourceSpec::parse("c:/x").map(|s| s.weight), Ok(1.0));
+    }
+
+    #[test]
+    fn splits_select_their_items() {
+        let tmp = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let dir = tmp.path().join("set");
+        super::super::synthetic::write_synthetic_dataset(&dir, 6, 32, 0, None)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let spec = SourceSpec {
+            path: dir.clone(),
+            weight: 1.0,
+        };
+        let items = |split| {
+            Source::open(&spec, split)
+                .unwrap_or_else(|e| panic!("{e}"))
+                .items
+        };
+        // No splits yet: every item trains, none validates or tests.
+        assert_eq!(items(Split::Train), [0, 1, 2, 3, 4, 5]);
+        assert!(items(Split::Val).is_empty() && items(Split::Test).is_empty());
+        let mut dataset = Dataset::open(&dir).unwrap_or_else(|e| panic!("{e}"));
+        for (item, split) in dataset
+            .items
+            .iter_mut()
+            .zip(["train", "test", "val", "train", "test", "train"])
+        {
+            item.split = Some(split.to_owned());
+        }
+        datasets::manifest::write_manifest(
+            &dir.join(datasets::manifest::MANIFEST_FILE),
+            &dataset.items,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(items(Split::Train), [0, 3, 5]);
+        assert_eq!(items(Split::Val), [2]);
+        assert_eq!(items(Split::Test), [1, 4]);
+        assert_eq!(items(Split::All), [0, 1, 2, 3, 4, 5]);
     }
 
     fn sample(w: u32, h: u32) -> Sample {

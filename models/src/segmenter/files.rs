@@ -7,6 +7,9 @@
 //!   model.safetensors    the same tensors under PyTorch names (BatchNorm weight / bias),
 //!                        loadable by scripts/segmenter_reference.py's PspNet
 //! ```
+//!
+//! A folder without `model.bpk` is read from its `model.safetensors` (the shipped model of
+//! [`super::shipped`] is such a folder).
 
 use std::path::Path;
 
@@ -128,7 +131,8 @@ pub fn load_record<M: Module>(path: &Path, model: M) -> Result<M> {
         .map_err(|e| SegmenterError::invalid(path, format!("does not fit the model's config: {e}")))
 }
 
-/// Reads a model folder (see the module docs) onto `device`.
+/// Reads a model folder (see the module docs) onto `device`: its burn record, else its
+/// safetensors.
 pub fn load_model(dir: &Path, device: &Device) -> Result<(PspNet, PspNetConfig)> {
     let config_path = dir.join(MODEL_CONFIG_FILE);
     if !config_path.is_file() {
@@ -145,7 +149,13 @@ pub fn load_model(dir: &Path, device: &Device) -> Result<(PspNet, PspNetConfig)>
     config
         .validate()
         .map_err(|e| SegmenterError::invalid(&config_path, e.to_string()))?;
-    let model = load_record(&dir.join(MODEL_RECORD_FILE), config.init(device)?)?;
+    let record = dir.join(MODEL_RECORD_FILE);
+    let safetensors = dir.join(MODEL_SAFETENSORS_FILE);
+    let model = if record.is_file() || !safetensors.is_file() {
+        load_record(&record, config.init(device)?)?
+    } else {
+        import_safetensors(&safetensors, config.init(device)?)?
+    };
     Ok((model, config))
 }
 
@@ -164,21 +174,74 @@ pub fn export_safetensors(path: &Path, model: &PspNet) -> Result<()> {
 
 /// Loads safetensors with PyTorch names (the export above, or
 /// `scripts/segmenter_reference.py`'s weights) into `model`; every tensor must match.
-pub fn import_safetensors(path: &Path, mut model: PspNet) -> Result<PspNet> {
-    let mut store = SafetensorsStore::from_file(path).with_from_adapter(PyTorchToBurnAdapter);
+pub fn import_safetensors(path: &Path, model: PspNet) -> Result<PspNet> {
+    let store = SafetensorsStore::from_file(path);
+    load_safetensors(store, model).map_err(|e| SegmenterError::invalid(path, e))
+}
+
+/// [`import_safetensors`] from the bytes of a safetensors file; errors name `what` (the
+/// file the bytes came from).
+pub fn import_safetensors_bytes(bytes: &[u8], what: &Path, model: PspNet) -> Result<PspNet> {
+    let store = SafetensorsStore::from_bytes(Some(bytes.to_vec()));
+    load_safetensors(store, model).map_err(|e| SegmenterError::invalid(what, e))
+}
+
+fn load_safetensors(
+    store: SafetensorsStore,
+    mut model: PspNet,
+) -> std::result::Result<PspNet, String> {
+    let mut store = store.with_from_adapter(PyTorchToBurnAdapter);
     let result = model
         .load_from(&mut store)
-        .map_err(|e| SegmenterError::invalid(path, format!("cannot load safetensors: {e}")))?;
+        .map_err(|e| format!("cannot load safetensors: {e}"))?;
     if !result.errors.is_empty() || !result.missing.is_empty() || !result.unused.is_empty() {
-        return Err(SegmenterError::invalid(
-            path,
-            format!(
-                "does not fit the model: missing {:?}, unused {:?}, errors {:?}",
-                result.missing.iter().map(|m| &m.0).collect::<Vec<_>>(),
-                result.unused,
-                result.errors
-            ),
+        return Err(format!(
+            "does not fit the model: missing {:?}, unused {:?}, errors {:?}",
+            result.missing.iter().map(|m| &m.0).collect::<Vec<_>>(),
+            result.unused,
+            result.errors
         ));
     }
     Ok(model)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::Tensor;
+
+    #[test]
+    fn a_folder_without_a_record_is_read_from_its_safetensors() {
+        let tmp = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let device = Device::flex();
+        let config = PspNetConfig::new()
+            .with_width(0.125)
+            .with_blocks(vec![1, 1, 1, 1])
+            .with_psp_channels(8);
+        let model = config
+            .init_seeded(&device, 3)
+            .unwrap_or_else(|e| panic!("{e}"));
+        save_model(tmp.path(), &model, &config).unwrap_or_else(|e| panic!("{e}"));
+        std::fs::remove_file(tmp.path().join(MODEL_RECORD_FILE)).unwrap_or_else(|e| panic!("{e}"));
+        let (loaded, loaded_config) =
+            load_model(tmp.path(), &device).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(loaded_config, config);
+        let input = || Tensor::<4>::ones([1, 3, 32, 32], &device);
+        let output = |m: &PspNet| {
+            m.forward(input())
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap_or_else(|e| panic!("{e:?}"))
+        };
+        assert_eq!(output(&loaded), output(&model));
+        // Neither file: the error names the record.
+        std::fs::remove_file(tmp.path().join(MODEL_SAFETENSORS_FILE))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let err = load_model(tmp.path(), &device).err().map(|e| e.to_string());
+        assert!(
+            err.as_deref()
+                .is_some_and(|e| e.contains(MODEL_RECORD_FILE)),
+            "{err:?}"
+        );
+    }
 }

@@ -7,10 +7,18 @@
 //! truth has at least one of its pixels; mIoU and mean accuracy average over the present
 //! classes only, so a class a validation set does not contain neither helps nor hurts
 //! (false positives of such a class still lower the IoU of the true classes they replace).
+//!
+//! [`bootstrap_iou`] gives 95 % intervals of mIoU and the per-class IoUs over images: the
+//! evaluated images are resampled with replacement and their confusion matrices summed.
 
+use std::collections::BTreeMap;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use datasets::IGNORE;
+use sim::stats::percentile_interval;
 
 /// Pixel counts by (true class, predicted class).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -179,9 +187,79 @@ pub struct MetricsSummary {
     pub mean_accuracy: f64,
     pub frequency_weighted_iou: f64,
     /// IoU of each present class, by class name.
-    pub per_class_iou: std::collections::BTreeMap<String, f64>,
+    pub per_class_iou: BTreeMap<String, f64>,
     /// Pixels counted (not ignored).
     pub pixels: u64,
+}
+
+/// Resamples [`bootstrap_iou`] draws by default.
+pub const BOOTSTRAP_RESAMPLES: usize = 1000;
+
+/// Seed of [`bootstrap_iou`]'s generator (ChaCha8), so the intervals are the same on every run.
+pub const BOOTSTRAP_SEED: u64 = 0;
+
+/// 95 % percentile-bootstrap intervals (2.5 and 97.5 percentiles), as `[lo, hi]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IouIntervals {
+    pub miou: (f64, f64),
+    /// By class name: the classes present in the ground truth of all the images (those of
+    /// [`MetricsSummary::per_class_iou`]).
+    pub per_class_iou: BTreeMap<String, (f64, f64)>,
+}
+
+/// Intervals of mIoU and of each class's IoU over `images`, one confusion matrix per image
+/// (all of one size): `resamples` times, as many images as there are are drawn with
+/// replacement (ChaCha8 seeded by `seed`), their matrices summed, and the IoUs and the mIoU
+/// of the sum computed by the rule of [`ConfusionMatrix::miou`] (over the classes present
+/// in the sum). A class present in the images but absent from a resample's ground truth is
+/// skipped for that resample. Classes are named by `names` (by index), as in
+/// [`ConfusionMatrix::summary`]. With no images, or no resamples, every interval is the
+/// point value twice.
+pub fn bootstrap_iou(
+    images: &[&ConfusionMatrix],
+    names: &[&str],
+    resamples: usize,
+    seed: u64,
+) -> IouIntervals {
+    let classes = images.first().map_or(0, |m| m.classes);
+    let mut pooled = ConfusionMatrix::new(classes);
+    for image in images {
+        pooled.merge(image);
+    }
+    let present: Vec<usize> = (0..classes).filter(|&c| pooled.is_present(c)).collect();
+    let mut mious = Vec::with_capacity(resamples);
+    let mut ious: Vec<Vec<f64>> = vec![Vec::with_capacity(resamples); present.len()];
+    if !images.is_empty() {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut sum = ConfusionMatrix::new(classes);
+        for _ in 0..resamples {
+            sum.counts.fill(0);
+            for _ in 0..images.len() {
+                sum.merge(images[rng.random_range(0..images.len())]);
+            }
+            mious.push(sum.miou());
+            let iou = sum.iou();
+            for (samples, &c) in ious.iter_mut().zip(&present) {
+                if sum.is_present(c) {
+                    samples.push(iou[c].unwrap_or(0.0));
+                }
+            }
+        }
+    }
+    let point = pooled.iou();
+    IouIntervals {
+        miou: percentile_interval(&mut mious, pooled.miou()),
+        per_class_iou: present
+            .iter()
+            .zip(&mut ious)
+            .map(|(&c, samples)| {
+                let name = names
+                    .get(c)
+                    .map_or_else(|| c.to_string(), |n| (*n).to_owned());
+                (name, percentile_interval(samples, point[c].unwrap_or(0.0)))
+            })
+            .collect(),
+    }
 }
 
 fn ratio(a: u64, b: u64) -> f64 {
@@ -249,5 +327,64 @@ mod tests {
         p.add(&[0, 1, 2, 2], &[0, 1, 2, 2]);
         assert!(close(p.miou(), 1.0) && close(p.frequency_weighted_iou(), 1.0));
         assert!(close(ConfusionMatrix::new(3).miou(), 0.0));
+    }
+
+    fn matrix(rows: &[Vec<u64>]) -> ConfusionMatrix {
+        ConfusionMatrix::from_rows(rows).unwrap_or_else(|| panic!("not square"))
+    }
+
+    #[test]
+    fn identical_images_give_a_zero_width_interval_at_the_point_value() {
+        let image = matrix(&[vec![50, 10, 0], vec![5, 20, 5], vec![0, 0, 0]]);
+        let images = vec![&image; 7];
+        let names = ["road", "lane_marking", "vehicle"];
+        let ci = bootstrap_iou(&images, &names, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED);
+        let miou = (50.0 / 65.0 + 0.5) / 2.0;
+        assert_eq!(ci.miou, (miou, miou));
+        // The absent class has no interval, as it has no figure.
+        assert_eq!(ci.per_class_iou.len(), 2);
+        assert_eq!(ci.per_class_iou["road"], (50.0 / 65.0, 50.0 / 65.0));
+        assert_eq!(ci.per_class_iou["lane_marking"], (0.5, 0.5));
+    }
+
+    #[test]
+    fn different_images_give_an_interval_around_the_pooled_value() {
+        // A: perfect; B: half wrong. Pooled: IoU 15 / 25 = 0.6 for both classes; resamples
+        // of A alone give 1, of B alone 5 / 15.
+        let a = matrix(&[vec![10, 0], vec![0, 10]]);
+        let b = matrix(&[vec![5, 5], vec![5, 5]]);
+        let ci = bootstrap_iou(&[&a, &b], &["road", "lane_marking"], 1000, 0);
+        let (lo, hi) = ci.miou;
+        assert!(lo < 0.6 && 0.6 < hi, "{lo} {hi}");
+        assert!((lo - 1.0 / 3.0).abs() < 1e-12 && hi == 1.0, "{lo} {hi}");
+        for (lo, hi) in ci.per_class_iou.values() {
+            assert!(*lo < 0.6 && 0.6 < *hi, "{lo} {hi}");
+        }
+        // Deterministic for a seed; another seed draws other resamples.
+        let many: Vec<ConfusionMatrix> = (0..20u64)
+            .map(|i| matrix(&[vec![10 + i, 3 * (i % 4)], vec![i % 5, 4 + i % 7]]))
+            .collect();
+        let many: Vec<&ConfusionMatrix> = many.iter().collect();
+        let names = ["road", "lane_marking"];
+        let first = bootstrap_iou(&many, &names, 200, 0);
+        assert_eq!(first, bootstrap_iou(&many, &names, 200, 0));
+        assert_ne!(first, bootstrap_iou(&many, &names, 200, 1));
+        assert!(first.miou.0 < first.miou.1);
+    }
+
+    #[test]
+    fn a_class_a_resample_lacks_is_skipped_for_it() {
+        // Class 1 is only in A (IoU 2 / 4); B is class 0 predicted right. Resamples of B
+        // alone have no class 1: its interval stays at 0.5 instead of reaching down to 0,
+        // and their mIoU is class 0's alone, 1.
+        let a = matrix(&[vec![10, 0], vec![2, 2]]);
+        let b = matrix(&[vec![10, 0], vec![0, 0]]);
+        let ci = bootstrap_iou(&[&a, &b], &["road", "lane_marking"], 1000, 0);
+        assert_eq!(ci.per_class_iou["lane_marking"], (0.5, 0.5));
+        assert_eq!(ci.miou.1, 1.0);
+        // No images: the point values, nothing per class.
+        let none = bootstrap_iou(&[], &[], 1000, 0);
+        assert_eq!(none.miou, (0.0, 0.0));
+        assert!(none.per_class_iou.is_empty());
     }
 }

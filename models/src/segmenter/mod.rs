@@ -1,5 +1,5 @@
 //! The PSPNet-style segmenter: the network ([`model`]), its loss ([`loss`]),
-//! confusion-matrix metrics ([`metrics`]).
+//! confusion-matrix metrics ([`metrics`]), the model shipped in the binary ([`shipped`]).
 
 pub mod data;
 pub mod error;
@@ -10,6 +10,7 @@ pub mod loss;
 pub mod metrics;
 pub mod model;
 pub mod recalibrate;
+pub mod shipped;
 pub mod synthetic;
 pub mod train;
 

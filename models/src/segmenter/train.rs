@@ -263,6 +263,12 @@ pub fn load_training_config(path: &Path) -> std::result::Result<TrainingConfig, 
     super::files::load_config(path, &TrainingConfig::new(PspNetConfig::new()))
 }
 
+/// [`load_training_config`] on the text of a `train.json`.
+pub fn load_training_config_text(json: &str) -> std::result::Result<TrainingConfig, String> {
+    let value: serde_json::Value = serde_json::from_str(json).map_err(|e| e.to_string())?;
+    super::files::config_from_value(value, &TrainingConfig::new(PspNetConfig::new()))
+}
+
 /// Where a run stands after an epoch (`checkpoint/state.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainState {

@@ -8,12 +8,15 @@ use anyhow::Result;
 use clap::{Args, ValueEnum};
 use models::segmenter::data::{SourceSpec, Split};
 use models::segmenter::eval::{Evaluation, class_names, evaluate};
+use models::segmenter::metrics::{
+    BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, IouIntervals, bootstrap_iou,
+};
+use models::segmenter::shipped::SHIPPED_MODEL_DIR;
 use models::segmenter::{ConfusionMatrix, MetricsSummary};
 use serde::Serialize;
 
 use super::{
-    Context, ModelArgs, inference, model_dir, open_model, open_sources, parse_source,
-    segmenter_error, with_threads,
+    Context, ModelArgs, inference, open_sources, parse_source, segmenter_error, with_threads,
 };
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 use crate::plots::confusion_png;
@@ -41,6 +44,10 @@ pub struct EvalArgs {
     #[arg(long, value_name = "N")]
     pub limit: Option<usize>,
 
+    /// Resamples of the images drawn for the 95 % intervals of mIoU and the IoUs.
+    #[arg(long, value_name = "N", default_value_t = BOOTSTRAP_RESAMPLES, value_parser = resamples)]
+    pub resamples: usize,
+
     /// Output folder (written atomically).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -52,15 +59,31 @@ pub struct EvalArgs {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum SplitArg {
+    /// The `train` split (every item of a dataset without splits).
     Train,
+    /// The `val` split.
     Val,
+    /// The `test` split (`dataset split --test`, `dataset import camvid`).
+    Test,
+    /// Every item.
     All,
+}
+
+fn resamples(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(n) if n > 0 => Ok(n),
+        _ => Err("give a whole number of resamples above 0 (1000 is usual)".to_owned()),
+    }
 }
 
 /// `metrics.json`.
 #[derive(Debug, Serialize)]
 pub struct EvalReport {
+    /// The model folder, or `shipped` for the model shipped in the binary.
     pub model: PathBuf,
+    /// No `--model`: the shipped model.
+    #[serde(skip)]
+    pub shipped: bool,
     pub datasets: Vec<PathBuf>,
     pub split: String,
     pub size: u32,
@@ -71,11 +94,22 @@ pub struct EvalReport {
     pub images: usize,
     #[serde(flatten)]
     pub overall: MetricsSummary,
-    pub per_dataset: BTreeMap<String, MetricsSummary>,
+    /// 95 % intervals of `miou` and `per_class_iou` over images (`ci95_rule`).
+    pub ci95: IouIntervals,
+    pub per_dataset: BTreeMap<String, DatasetFigures>,
     pub classes: Vec<String>,
     /// Rows: true class; columns: predicted class; pixels.
     pub confusion_matrix: Vec<Vec<u64>>,
     pub rule: &'static str,
+    pub ci95_rule: String,
+}
+
+/// One dataset's figures in `metrics.json`.
+#[derive(Debug, Serialize)]
+pub struct DatasetFigures {
+    #[serde(flatten)]
+    pub figures: MetricsSummary,
+    pub ci95: IouIntervals,
 }
 
 pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
@@ -83,10 +117,11 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     AtomicDir::check_destination(&out_path, EVAL_MARKERS)?;
     let size = args.model.size("eval")?;
     let device = ctx.device()?;
-    let (model, config) = open_model(&args.model.model, &device)?;
+    let (model, config) = args.model.open(&device)?;
     let split = match args.split {
         SplitArg::Train => Split::Train,
         SplitArg::Val => Split::Val,
+        SplitArg::Test => Split::Test,
         SplitArg::All => Split::All,
     };
     let sources = open_sources(&args.data, split)?;
@@ -141,8 +176,8 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let dest = dir.commit()?;
     drop(progress);
     ctx.ui.result(&format!(
-        "mIoU {:.4}, pixel accuracy {:.4} on {}; {}",
-        report.overall.miou,
+        "mIoU {}, pixel accuracy {:.4} on {}; {}",
+        with_interval(report.overall.miou, Some(report.ci95.miou)),
         report.overall.pixel_accuracy,
         plural(report.images, "image"),
         dest.display()
@@ -154,6 +189,7 @@ fn split_name(split: SplitArg) -> String {
     match split {
         SplitArg::Train => "train",
         SplitArg::Val => "val",
+        SplitArg::Test => "test",
         SplitArg::All => "all",
     }
     .to_owned()
@@ -167,8 +203,17 @@ fn eval_report(
     split: String,
 ) -> EvalReport {
     let names: Vec<&str> = classes.iter().map(String::as_str).collect();
+    let ci95 = |source| {
+        bootstrap_iou(
+            &e.image_matrices(source),
+            &names,
+            args.resamples,
+            BOOTSTRAP_SEED,
+        )
+    };
     EvalReport {
-        model: model_dir(&args.model.model),
+        model: args.model.name(),
+        shipped: args.model.model.is_none(),
         datasets: args.data.iter().map(|d| d.path.clone()).collect(),
         split,
         size,
@@ -176,15 +221,29 @@ fn eval_report(
         flip: args.model.flip,
         images: e.images,
         overall: e.overall.summary(&names),
+        ci95: ci95(None),
         per_dataset: e
             .per_source
             .iter()
-            .map(|(n, m)| (n.clone(), m.summary(&names)))
+            .enumerate()
+            .map(|(i, (n, m))| {
+                let figures = DatasetFigures {
+                    figures: m.summary(&names),
+                    ci95: ci95(Some(i)),
+                };
+                (n.clone(), figures)
+            })
             .collect(),
         classes: classes.to_vec(),
         confusion_matrix: e.overall.rows(),
         rule: "mIoU and mean accuracy average over the classes present in the ground truth; \
                a prediction of a class a dataset cannot label (its card) counts as the pixel's label",
+        ci95_rule: format!(
+            "95 % percentile bootstrap over images: {} resamples of the images with \
+             replacement (ChaCha8, seed {BOOTSTRAP_SEED}), their confusion matrices summed; \
+             a class absent from a resample's ground truth is skipped for that resample",
+            args.resamples
+        ),
     }
 }
 
@@ -193,8 +252,12 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
     let _ = writeln!(s, "# Segmenter evaluation\n");
     let _ = writeln!(
         s,
-        "Model `{}`, {} of the `{}` split of {}, short side {} px{}{}.\n",
-        r.model.display(),
+        "{}, {} of the `{}` split of {}, short side {} px{}{}.\n",
+        if r.shipped {
+            format!("The shipped model (`{SHIPPED_MODEL_DIR}`)")
+        } else {
+            format!("Model `{}`", r.model.display())
+        },
         plural(r.images, "image"),
         r.split,
         r.datasets
@@ -215,9 +278,12 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
             ""
         }
     );
-    let _ = writeln!(s, "| figure | value |\n| --- | ---: |");
+    let _ = writeln!(
+        s,
+        "| figure | value [95 % interval] |\n| --- | ---: |\n| mIoU | {} |",
+        with_interval(r.overall.miou, Some(r.ci95.miou))
+    );
     for (name, v) in [
-        ("mIoU", r.overall.miou),
         ("pixel accuracy", r.overall.pixel_accuracy),
         ("mean accuracy", r.overall.mean_accuracy),
         ("frequency-weighted IoU", r.overall.frequency_weighted_iou),
@@ -226,7 +292,7 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
     }
     let _ = writeln!(
         s,
-        "\n## IoU per class\n\n| class | IoU |{} \n| --- | ---: |{}",
+        "\n## IoU per class\n\n| class | IoU [95 % interval] |{} \n| --- | ---: |{}",
         r.per_dataset
             .keys()
             .map(|k| format!(" {k} |"))
@@ -234,18 +300,18 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
         " ---: |".repeat(r.per_dataset.len())
     );
     for c in &r.classes {
-        let cell = |m: &MetricsSummary| {
-            m.per_class_iou
-                .get(c)
-                .map_or("–".to_owned(), |v| format!("{v:.4}"))
+        let cell = |m: &MetricsSummary, ci: &IouIntervals| {
+            m.per_class_iou.get(c).map_or("–".to_owned(), |&v| {
+                with_interval(v, ci.per_class_iou.get(c).copied())
+            })
         };
         let _ = writeln!(
             s,
             "| {c} | {} |{}",
-            cell(&r.overall),
+            cell(&r.overall, &r.ci95),
             r.per_dataset
                 .values()
-                .map(|m| format!(" {} |", cell(m)))
+                .map(|d| format!(" {} |", cell(&d.figures, &d.ci95)))
                 .collect::<String>()
         );
     }
@@ -282,8 +348,16 @@ fn markdown(r: &EvalReport, m: &ConfusionMatrix) -> String {
     }
     let _ = writeln!(
         s,
-        "\n{}\n\n`{CONFUSION_PNG}`: the same matrix as a picture, each cell's share of its row written in it and shaded darker for a larger share; the diagonal (correct pixels) is outlined, each row's pixel count is on the right.",
-        r.rule
+        "\n{}\n\nIntervals in brackets: {}.\n\n`{CONFUSION_PNG}`: the same matrix as a picture, each cell's share of its row written in it and shaded darker for a larger share; the diagonal (correct pixels) is outlined, each row's pixel count is on the right.",
+        r.rule, r.ci95_rule
     );
     s
+}
+
+/// `0.7123 [0.6900, 0.7300]`: a figure and its 95 % interval.
+fn with_interval(value: f64, interval: Option<(f64, f64)>) -> String {
+    match interval {
+        Some((lo, hi)) => format!("{value:.4} [{lo:.4}, {hi:.4}]"),
+        None => format!("{value:.4}"),
+    }
 }

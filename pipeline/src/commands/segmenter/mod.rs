@@ -3,14 +3,15 @@
 //!
 //! ```text
 //! pipeline segmenter train   --data DIR[:WEIGHT]... [--val DIR...] --out RUN [--resume] [--max-minutes M] ...
-//! pipeline segmenter eval    --model MODEL --data DIR... [--split val] --out DIR
-//! pipeline segmenter predict --model MODEL INPUT --out DIR
+//! pipeline segmenter eval    [--model MODEL] --data DIR... [--split val|test|train|all] --out DIR
+//! pipeline segmenter predict [--model MODEL] INPUT --out DIR
 //! pipeline segmenter bench   [--model MODEL] [--size 256] [--batch 1] [--threads 2]
 //! pipeline segmenter recalibrate --run RUN [--from best|checkpoint] --data DIR[:WEIGHT]... [--batches 100] --out DIR
 //! ```
 //!
-//! `MODEL` is a model folder (`model.json` + `model.bpk`) or a training run folder, whose
-//! `best/` model is used.
+//! `MODEL` is a model folder (`model.json` + `model.bpk` or `model.safetensors`) or a training
+//! run folder, whose `best/` model is used; without `--model`, `eval` and `predict` use the
+//! model shipped in the binary (`models::segmenter::shipped`).
 
 mod arch_args;
 mod bench;
@@ -28,6 +29,7 @@ use clap::{Args, Subcommand};
 use models::segmenter::data::{Source, SourceSpec, Split};
 use models::segmenter::files::{MODEL_CONFIG_FILE, load_model};
 use models::segmenter::infer::Inference;
+use models::segmenter::shipped::{SHIPPED_MODEL_NAME, shipped_model, shipped_short_side};
 use models::segmenter::train::{
     BEST_DIR, DEFAULT_SHORT_SIDE, TrainingConfig, load_training_config, trained_short_side,
 };
@@ -63,13 +65,14 @@ pub fn run(ctx: &Context<'_>, command: &SegmenterCommand) -> Result<()> {
 /// Options shared by the commands that run a trained model.
 #[derive(Debug, Args)]
 pub struct ModelArgs {
-    /// A model folder (model.json, model.bpk) or a training run folder (its best model).
+    /// A model folder (model.json with model.bpk or model.safetensors) or a training run
+    /// folder (its best model) [default: the model shipped in the binary].
     #[arg(long, value_name = "DIR")]
-    pub model: PathBuf,
+    pub model: Option<PathBuf>,
 
     /// Short side the images are resized to before the network (predictions are scaled
     /// back to the image's size); 0 keeps the images' own size [default: the size the model
-    /// was trained at (its run folder's train.json), else 256].
+    /// was trained at (its run folder's train.json, or the shipped model's), else 256].
     #[arg(long, value_name = "PX")]
     pub size: Option<u32>,
 
@@ -115,10 +118,30 @@ impl ModelArgs {
             check_size("--size", size.into(), command, true)?;
             return Ok(size);
         }
-        let trained = trained_short_side(&model_dir(&self.model)).map_err(|e| {
+        let Some(path) = &self.model else {
+            return shipped_short_side()
+                .map_err(|e| segmenter_error(e, "give --size, or --model with a model folder"));
+        };
+        let trained = trained_short_side(&model_dir(path)).map_err(|e| {
             segmenter_error(e, "give --size, or repair the run folder's train.json")
         })?;
         Ok(trained.unwrap_or(DEFAULT_SHORT_SIDE))
+    }
+
+    /// The model `--model` names, else the shipped one.
+    pub fn open(&self, device: &Device) -> Result<(PspNet, PspNetConfig)> {
+        match &self.model {
+            Some(path) => open_model(path, device),
+            None => shipped_model(device)
+                .map_err(|e| segmenter_error(e, "give --model with a model folder")),
+        }
+    }
+
+    /// What outputs call the model: its folder (a run folder's `best/`), or `shipped`.
+    pub fn name(&self) -> PathBuf {
+        self.model
+            .as_deref()
+            .map_or_else(|| PathBuf::from(SHIPPED_MODEL_NAME), model_dir)
     }
 }
 

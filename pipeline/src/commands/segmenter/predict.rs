@@ -8,7 +8,7 @@ use clap::Args;
 use datasets::image_io::{encode_label_png, encode_rgb_png, overlay_label, read_rgb};
 use models::segmenter::infer::predict_label;
 
-use super::{Context, ModelArgs, inference, open_model, with_threads};
+use super::{Context, ModelArgs, inference, with_threads};
 use crate::cli::OnErrorArg;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
@@ -83,7 +83,7 @@ pub fn run(ctx: &Context<'_>, args: &PredictArgs) -> Result<()> {
     let size = args.model.size("predict")?;
     let files = inputs(&args.input)?;
     let device = ctx.device()?;
-    let (model, config) = open_model(&args.model.model, &device)?;
+    let (model, config) = args.model.open(&device)?;
     let inference = inference(size, &args.model);
     let dir = AtomicDir::create(&out_path, PREDICT_MARKERS)?;
     for sub in [LABELS_DIR, OVERLAYS_DIR] {
