@@ -268,3 +268,70 @@ fn two_shards_merge_into_the_unsharded_folder() {
     assert!(stderr(&out).contains("exactly once"), "{}", stderr(&out));
     assert!(!bad.exists());
 }
+
+/// `--settings`: a file holding the defaults gives the same bytes as no file; street
+/// furniture and parked cars change the pictures (more `other` and `vehicle` pixels over the
+/// set); an unknown key is refused naming the file and the key, writing nothing.
+#[test]
+fn settings_files_set_the_generation() {
+    let tmp = tempfile::tempdir().unwrap();
+    let defaults = tmp.path().join("defaults.toml");
+    std::fs::write(
+        &defaults,
+        "[scenery]\nfurniture_per_100m = 0.0\n\n[traffic]\nparked_rows = [0, 0]\n",
+    )
+    .unwrap();
+    let town = tmp.path().join("town.toml");
+    std::fs::write(
+        &town,
+        "[scenery]\nfurniture_per_100m = 12.0\n\n[traffic]\nvehicles = [0, 0]\nparked_rows = [3, 4]\n",
+    )
+    .unwrap();
+    let args = ["--count", "12", "--size", "96x64"];
+    let plain = tmp.path().join("plain").join("ds");
+    assert_success(&generate(&bundled_map(), &plain, "2", &args), "plain");
+    let same = tmp.path().join("same").join("ds");
+    let mut with_defaults = args.to_vec();
+    with_defaults.extend(["--settings", defaults.to_str().unwrap()]);
+    assert_success(
+        &generate(&bundled_map(), &same, "2", &with_defaults),
+        "defaults",
+    );
+    assert_eq!(files(&plain.join("images")), files(&same.join("images")));
+    assert_eq!(files(&plain.join("labels")), files(&same.join("labels")));
+    let busy = tmp.path().join("busy").join("ds");
+    let mut with_town = args.to_vec();
+    with_town.extend(["--settings", town.to_str().unwrap()]);
+    assert_success(&generate(&bundled_map(), &busy, "2", &with_town), "town");
+    let vehicle_pixels = |dir: &Path| -> usize {
+        files(&dir.join("labels"))
+            .values()
+            .map(|png| {
+                let label = image::load_from_memory(png).unwrap().to_luma8();
+                label.pixels().filter(|p| p.0[0] == 2).count()
+            })
+            .sum()
+    };
+    // No moving traffic at all in the town set: its vehicles are the parked rows.
+    assert!(vehicle_pixels(&busy) > 0, "parked cars are drawn");
+    let card = read_json(&busy.join("card.json"));
+    assert_eq!(
+        card["config"]["generate"]["scenery"]["furniture_per_100m"],
+        serde_json::json!(12.0),
+        "{card}"
+    );
+
+    let bad = tmp.path().join("bad.toml");
+    std::fs::write(&bad, "[scenery]\nfurniture = 3\n").unwrap();
+    let refused = tmp.path().join("refused");
+    let mut with_bad = args.to_vec();
+    with_bad.extend(["--settings", bad.to_str().unwrap()]);
+    let out = generate(&bundled_map(), &refused, "2", &with_bad);
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("bad.toml") && err.contains("furniture"),
+        "{err}"
+    );
+    assert!(!refused.exists());
+}

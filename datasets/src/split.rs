@@ -134,6 +134,57 @@ pub fn split_items(
     counts
 }
 
+/// Sets every item's `split` by naming groups: the groups in `val` go to validation, those
+/// in `test` to test, every other group to training (CamVid's sequences, for a protocol
+/// that never scores on a sequence seen in training). Errors name a group that no item
+/// has, or one named twice.
+pub fn assign_groups(
+    items: &mut [Item],
+    by: GroupBy,
+    val: &[String],
+    test: &[String],
+) -> Result<SplitCounts, String> {
+    if let Some(both) = val.iter().find(|g| test.contains(g)) {
+        return Err(format!("group `{both}` is named for both val and test"));
+    }
+    let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    for (i, item) in items.iter().enumerate() {
+        groups.entry(group_key(item, by)).or_default().push(i);
+    }
+    if let Some(missing) = val.iter().chain(test).find(|g| !groups.contains_key(*g)) {
+        let known: Vec<&str> = groups.keys().take(12).map(String::as_str).collect();
+        return Err(format!(
+            "no item is in group `{missing}` (groups: {}{})",
+            known.join(", "),
+            if groups.len() > known.len() {
+                ", ..."
+            } else {
+                ""
+            }
+        ));
+    }
+    let mut counts = SplitCounts {
+        groups: groups.len(),
+        ..SplitCounts::default()
+    };
+    for (key, members) in &groups {
+        let name = if val.contains(key) {
+            counts.val += members.len();
+            "val"
+        } else if test.contains(key) {
+            counts.test += members.len();
+            "test"
+        } else {
+            counts.train += members.len();
+            "train"
+        };
+        for &i in members {
+            items[i].split = Some(name.to_owned());
+        }
+    }
+    Ok(counts)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -171,6 +222,30 @@ mod tests {
         let mut p = items(30);
         let counts = split_items(&mut p, &SplitRatios::default(), 0, GroupBy::Prefix);
         assert_eq!(counts.groups, 3);
+    }
+
+    #[test]
+    fn named_groups_go_where_they_are_named() {
+        let mut v = items(30);
+        let counts = assign_groups(&mut v, GroupBy::Prefix, &["seq1".into()], &["seq2".into()])
+            .expect("both groups exist");
+        assert_eq!((counts.train, counts.val, counts.test), (10, 10, 10));
+        for item in &v {
+            let expected = if item.id.starts_with("seq1_") {
+                "val"
+            } else if item.id.starts_with("seq2_") {
+                "test"
+            } else {
+                "train"
+            };
+            assert_eq!(item.split.as_deref(), Some(expected), "{}", item.id);
+        }
+        let err = assign_groups(&mut v, GroupBy::Prefix, &["seq9".into()], &[])
+            .expect_err("no item is in seq9");
+        assert!(err.contains("seq9") && err.contains("seq0"), "{err}");
+        assert!(
+            assign_groups(&mut v, GroupBy::Prefix, &["seq1".into()], &["seq1".into()]).is_err()
+        );
     }
 
     #[test]

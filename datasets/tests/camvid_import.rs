@@ -112,3 +112,49 @@ fn camvid_val_keeps_its_pixel_shares_in_our_classes() {
     assert_eq!(percent("lane_marking"), 0.0);
     assert!(!report.labelable.iter().any(|c| c == "lane_marking"));
 }
+
+/// The sequence-disjoint protocol: CamVid's frames grouped by sequence (the id up to its
+/// first `_`), one sequence each for validation and test, the README's frame counts.
+#[test]
+fn camvid_sequences_split_apart() {
+    let Some(root) = camvid_dir() else { return };
+    let options = ImportOptions {
+        name: "camvid".into(),
+        format: SourceFormat::Camvid,
+        layout: LayoutOptions {
+            root,
+            splits: vec!["train".into(), "val".into()],
+            images: None,
+            labels: None,
+            variant: None,
+        },
+        class_map: ClassMap::load("camvid").unwrap(),
+        source_config: None,
+        lane_masks: None,
+        on_error: OnError::Fail,
+    };
+    let out = tempfile::tempdir().unwrap();
+    import(&options, out.path()).unwrap();
+    let mut items = datasets::manifest::Dataset::open(out.path()).unwrap().items;
+    let counts = datasets::split::assign_groups(
+        &mut items,
+        datasets::split::GroupBy::Prefix,
+        &["0001TP".into()],
+        &["0006R0".into()],
+    )
+    .unwrap();
+    // README: 0001TP x62, 0006R0 x101, 0016E5 x204 + x101.
+    assert_eq!(
+        (counts.train, counts.val, counts.test, counts.groups),
+        (305, 62, 101, 3)
+    );
+    for item in &items {
+        let sequence = item.id.split('_').next().unwrap();
+        let expected = match sequence {
+            "0001TP" => "val",
+            "0006R0" => "test",
+            _ => "train",
+        };
+        assert_eq!(item.split.as_deref(), Some(expected), "{}", item.id);
+    }
+}

@@ -26,6 +26,9 @@ pub struct TrafficConfig {
     pub crossing_share: f64,
     /// Road users are kept within this distance of the camera, metres.
     pub range_m: f64,
+    /// Rows of cars parked along the right edge of a lane (2-5 nose to tail), per view;
+    /// (0, 0) draws none and leaves the other road users as they are (rows come last).
+    pub parked_rows: (u32, u32),
 }
 
 impl Default for TrafficConfig {
@@ -36,6 +39,7 @@ impl Default for TrafficConfig {
             lead_vehicle_share: 0.4,
             crossing_share: 0.3,
             range_m: 70.0,
+            parked_rows: (0, 0),
         }
     }
 }
@@ -336,6 +340,32 @@ pub fn place_actors(
             height_m: height,
         };
         try_place(a, &mut placed);
+    }
+
+    let rows =
+        rng.random_range(config.parked_rows.0..=config.parked_rows.1.max(config.parked_rows.0));
+    for _ in 0..rows {
+        if lanes.is_empty() {
+            break;
+        }
+        let id = scene.car_lanes[lanes[rng.random_range(0..lanes.len())] as usize];
+        let Some(lane) = map.lanes.get(&id) else {
+            continue;
+        };
+        let len = polyline_length(&lane.centre);
+        let mut s = uniform(rng, (0.0, len));
+        for _ in 0..rng.random_range(2..=5) {
+            let mut a = vehicle_on(&lane.centre, s, rng);
+            let d = direction_at(&lane.centre, s);
+            let towards_kerb =
+                (lane.width_m / 2.0 - a.width_m / 2.0 - uniform(rng, (0.05, 0.3))).max(0.0);
+            a.position = point_at(&lane.centre, s).add(d.perp().scale(-towards_kerb));
+            s += a.length_m + uniform(rng, (0.5, 2.0));
+            if s >= len {
+                break;
+            }
+            try_place(a, &mut placed);
+        }
     }
     placed
 }

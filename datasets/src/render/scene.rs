@@ -26,7 +26,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::raster::fill_polygon;
-use super::solids::{Placement, Rgb, Solid, building, tree};
+use super::solids::{BoxExtent, Placement, Rgb, Solid, Tint, building, tree};
 use crate::classes::Class;
 
 /// What a piece of ground is made of: decides its class and its look.
@@ -120,6 +120,10 @@ pub struct SceneryConfig {
     pub building_setback_m: (f64, f64),
     pub building_height_m: (f64, f64),
     pub trees: bool,
+    /// Street furniture at the roadside (lamp posts, sign posts with their signs, bollards),
+    /// items per 100 m of road side; 0 draws none (and leaves the rest of the scenery as it
+    /// is: furniture is placed last, from the same generator).
+    pub furniture_per_100m: f64,
 }
 
 impl Default for SceneryConfig {
@@ -133,6 +137,7 @@ impl Default for SceneryConfig {
             building_setback_m: (2.0, 10.0),
             building_height_m: (4.0, 22.0),
             trees: true,
+            furniture_per_100m: 0.0,
         }
     }
 }
@@ -713,6 +718,15 @@ impl Occupancy {
         )
     }
 
+    /// What the cell at `p` holds; `None` outside the grid.
+    fn at(&self, p: Point) -> Option<u8> {
+        let (x, y) = self.to_grid(p);
+        if x < 0.0 || y < 0.0 || x >= self.cols as f64 || y >= self.rows as f64 {
+            return None;
+        }
+        Some(self.cells[y as usize * self.cols + x as usize])
+    }
+
     /// Every cell a polygon touches (its centre inside, or the polygon grown by one cell).
     fn cells_of(&self, pts: &[Point], grow_m: f64, mut f: impl FnMut(usize)) {
         let centre = pts
@@ -885,7 +899,113 @@ fn place_scenery(
             s += uniform(rng, (7.0, 16.0));
         }
     }
+    if config.furniture_per_100m > 0.0 {
+        for side in sides {
+            place_furniture(side, config.furniture_per_100m, occupancy, rng, &mut push);
+        }
+    }
     props
+}
+
+/// Paint of posts and signs: galvanised grey, dark green, black; sign faces.
+const POSTS: [Rgb; 4] = [
+    [0.55, 0.56, 0.56],
+    [0.2, 0.25, 0.22],
+    [0.12, 0.12, 0.13],
+    [0.7, 0.7, 0.68],
+];
+const SIGNS: [Rgb; 6] = [
+    [0.85, 0.85, 0.85],
+    [0.1, 0.25, 0.6],
+    [0.75, 0.12, 0.1],
+    [0.9, 0.75, 0.15],
+    [0.15, 0.45, 0.2],
+    [0.95, 0.95, 0.95],
+];
+
+/// Lamp posts, sign posts and bollards along one road side, at the kerb edge of its
+/// sidewalk (or of the verge when it has none), `per_100m` on average.
+fn place_furniture(
+    side: &RoadSide,
+    per_100m: f64,
+    occupancy: &mut Occupancy,
+    rng: &mut ChaCha8Rng,
+    push: &mut impl FnMut(Solid),
+) {
+    let len = polyline_length(&side.edge);
+    let mean_gap = 100.0 / per_100m;
+    let mut s = uniform(rng, (0.0, mean_gap));
+    while s < len {
+        let kind = rng.random_range(0..10);
+        let colour = pick_colour(rng, &POSTS, 0.15);
+        let offset = side.kerb_m + uniform(rng, (0.25, 0.6));
+        let p = point_at(&side.edge, s);
+        let dir = direction_at(&side.edge, s);
+        let out = dir.perp().scale(-1.0);
+        let centre = p.add(out.scale(offset));
+        let frame = Placement::new(centre, dir.y.atan2(dir.x));
+        let mut solid = Solid::new(Class::Other);
+        match kind {
+            // A lamp post: a tall pole with an arm over the road.
+            0..=3 => {
+                let height = uniform(rng, (5.0, 9.0));
+                let r = uniform(rng, (0.07, 0.14));
+                solid.add_cylinder(centre, (r, r * 0.7), (0.0, height), 6, colour, Tint::None);
+                let reach = uniform(rng, (0.8, 2.2));
+                solid.add_box(
+                    &frame,
+                    BoxExtent {
+                        x: (-0.06, 0.06),
+                        y: (0.0, reach),
+                        z: (height - 0.12, height),
+                    },
+                    colour,
+                    Tint::None,
+                );
+            }
+            // A sign post with one or two plates facing the traffic.
+            4..=7 => {
+                let height = uniform(rng, (2.2, 3.4));
+                let r = uniform(rng, (0.035, 0.06));
+                solid.add_cylinder(centre, (r, r), (0.0, height), 6, colour, Tint::None);
+                let plates = rng.random_range(1..=2);
+                let mut top = height;
+                for _ in 0..plates {
+                    let size = uniform(rng, (0.45, 0.9));
+                    let face = pick_colour(rng, &SIGNS, 0.1);
+                    solid.add_box(
+                        &frame,
+                        BoxExtent {
+                            x: (-0.03, 0.03),
+                            y: (-size / 2.0, size / 2.0),
+                            z: (top - size, top),
+                        },
+                        face,
+                        Tint::None,
+                    );
+                    top -= size + 0.05;
+                }
+            }
+            // A bollard or a bin.
+            _ => {
+                let height = uniform(rng, (0.6, 1.1));
+                let r = uniform(rng, (0.08, 0.3));
+                solid.add_cylinder(centre, (r, r), (0.0, height), 8, colour, Tint::None);
+            }
+        }
+        // The pole stands within the road's grown cells; a metre further out must be off
+        // every road (not inside a junction or another road), and no scenery there.
+        let beyond = p.add(out.scale(offset + 1.0));
+        if occupancy
+            .at(beyond)
+            .is_some_and(|c| c != ROAD && c != TAKEN)
+            && occupancy.at(centre).is_some_and(|c| c != TAKEN)
+        {
+            occupancy.claim(&square(centre, 0.15), 0.0, &[]);
+            push(solid);
+        }
+        s += uniform(rng, (0.3 * mean_gap, 1.7 * mean_gap));
+    }
 }
 
 /// Whether a tree crown over `ring` stays off roads and other scenery.

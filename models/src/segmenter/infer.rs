@@ -9,21 +9,51 @@ use super::data::scaled_size;
 use super::model::{PspNet, PspNetConfig, resize};
 
 /// RGB8 images of one size to the network's input: `(pixel - mean) / std` per channel,
-/// `[batch, 3, H, W]`.
+/// `[batch, 3, H, W]`; with `per_image_normalisation`, each image's own per-channel mean and
+/// standard deviation (the latter at least 1, in 0-255 units).
 pub fn normalise(images: &[&RgbImage], config: &PspNetConfig, device: &Device) -> Tensor<4> {
     let (w, h) = images.first().map_or((0, 0), |i| i.dimensions());
     let (w, h) = (w as usize, h as usize);
     let plane = w * h;
     let mut values = vec![0.0f32; images.len() * 3 * plane];
     for (b, image) in images.iter().enumerate() {
+        let (mean, std) = if config.per_image_normalisation {
+            image_statistics(image, plane)
+        } else {
+            (config.mean, config.std)
+        };
         for (i, pixel) in image.as_raw().chunks_exact(3).enumerate().take(plane) {
             for c in 0..3 {
-                values[(b * 3 + c) * plane + i] =
-                    (f32::from(pixel[c]) - config.mean[c]) / config.std[c];
+                values[(b * 3 + c) * plane + i] = (f32::from(pixel[c]) - mean[c]) / std[c];
             }
         }
     }
     Tensor::from_data(TensorData::new(values, [images.len(), 3, h, w]), device)
+}
+
+/// Per-channel mean and standard deviation (at least 1) of an image's first `plane` pixels,
+/// summed in f64 so the order of the pixels does not matter.
+fn image_statistics(image: &RgbImage, plane: usize) -> ([f32; 3], [f32; 3]) {
+    let mut sum = [0.0f64; 3];
+    let mut squares = [0.0f64; 3];
+    let mut n = 0.0f64;
+    for pixel in image.as_raw().chunks_exact(3).take(plane) {
+        for c in 0..3 {
+            let v = f64::from(pixel[c]);
+            sum[c] += v;
+            squares[c] += v * v;
+        }
+        n += 1.0;
+    }
+    let n = n.max(1.0);
+    let mean = sum.map(|s| s / n);
+    let std: [f32; 3] = std::array::from_fn(|c| {
+        ((squares[c] / n - mean[c] * mean[c])
+            .max(0.0)
+            .sqrt()
+            .max(1.0)) as f32
+    });
+    (mean.map(|m| m as f32), std)
 }
 
 /// Class ids of `[batch, classes, H, W]` logits: `batch` labels of `H × W`, row-major.
@@ -166,6 +196,38 @@ mod tests {
         assert_eq!(t.dims(), [1, 3, 1, 2]);
         let v = t.into_data().try_to_vec::<f32>().unwrap_or_default();
         assert_eq!(v, vec![0.0, 1.0, 0.0, 2.0, 0.0, 2.0]);
+    }
+
+    #[test]
+    fn per_image_normalisation_ignores_exposure_and_contrast() {
+        let config = PspNetConfig::new().with_per_image_normalisation(true);
+        let raw: Vec<u8> = (0..48u8).map(|v| 40 + 3 * v).collect();
+        let bright = RgbImage::from_raw(4, 4, raw.clone()).unwrap_or_default();
+        // The same picture at half the exposure, 10 levels up: an affine change per channel.
+        let dim =
+            RgbImage::from_raw(4, 4, raw.iter().map(|v| v / 2 + 10).collect()).unwrap_or_default();
+        let a = normalise(&[&bright], &config, &Device::flex());
+        let b = normalise(&[&dim], &config, &Device::flex());
+        let (a, b) = (
+            a.into_data().try_to_vec::<f32>().unwrap_or_default(),
+            b.into_data().try_to_vec::<f32>().unwrap_or_default(),
+        );
+        let channel = &a[..16];
+        let mean = channel.iter().sum::<f32>() / 16.0;
+        let var = channel.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / 16.0;
+        assert!(
+            mean.abs() < 1e-5 && (var - 1.0).abs() < 1e-4,
+            "{mean} {var}"
+        );
+        // Integer halving rounds, so the two agree to about one level in the spread.
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() < 0.05, "{x} {y}");
+        }
+        // Off, the two differ.
+        let plain = PspNetConfig::new();
+        let c = normalise(&[&dim], &plain, &Device::flex());
+        let c = c.into_data().try_to_vec::<f32>().unwrap_or_default();
+        assert!(c.iter().zip(&a).any(|(x, y)| (x - y).abs() > 0.5));
     }
 
     /// A tiny untrained network with weights from `seed`, its config and device.

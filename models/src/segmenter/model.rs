@@ -101,6 +101,11 @@ pub struct PspNetConfig {
     /// Per-channel standard deviation in 0-255 units.
     #[config(default = "[58.395, 57.12, 57.375]")]
     pub std: [f32; 3],
+    /// Normalise each image by its own per-channel mean and standard deviation instead of
+    /// `mean` and `std`, so a darker, brighter or flatter camera gives the network the same
+    /// input (for images from another camera than the training set's).
+    #[config(default = false)]
+    pub per_image_normalisation: bool,
 }
 
 impl PspNetConfig {

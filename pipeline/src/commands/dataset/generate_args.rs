@@ -24,6 +24,12 @@ pub struct GenerateArgs {
     #[arg(long, default_value_t = 100)]
     pub count: u64,
 
+    /// Generation settings, TOML: any of the `camera`, `scenery`, `traffic` and `randomise`
+    /// tables and `draw_distance_m` (docs/datasets.md lists them; unset keys keep their
+    /// defaults, an unknown key is an error). The options below override it.
+    #[arg(long, value_name = "FILE")]
+    pub settings: Option<PathBuf>,
+
     /// Image size, WIDTHxHEIGHT [default: 480x270].
     #[arg(long, value_name = "WxH")]
     pub size: Option<String>,
@@ -87,7 +93,10 @@ fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
 
 /// The generation config from the defaults and the command line.
 pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
-    let mut config = GenerateConfig::default();
+    let mut config = match &args.settings {
+        Some(path) => read_settings(path)?,
+        None => GenerateConfig::default(),
+    };
     if let Some(size) = &args.size {
         let (w, h) = parse_size(size)
             .map_err(|m| CliError::new(format!("--size: {m}"), "e.g. --size 512x512"))?;
@@ -116,7 +125,9 @@ pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
     if args.topdown {
         config.topdown = Some(TopdownConfig::default());
     }
-    config.randomise.enabled = !args.no_randomise;
+    if args.no_randomise {
+        config.randomise.enabled = false;
+    }
     config.check().map_err(|e| {
         CliError::new(
             e.to_string(),
@@ -124,6 +135,20 @@ pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
         )
     })?;
     Ok(config)
+}
+
+/// A generation settings file.
+fn read_settings(path: &std::path::Path) -> Result<GenerateConfig> {
+    let hint = "see docs/datasets.md for the settings, or configs/ for examples";
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| CliError::file(path, format!("cannot read: {e}"), hint))?;
+    Ok(toml::from_str(&text).map_err(|e| {
+        CliError::file(
+            path,
+            format!("not generation settings: {}", e.message()),
+            hint,
+        )
+    })?)
 }
 
 /// "4-16" to (4, 16).

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::ValueEnum;
 use datasets::manifest::{MANIFEST_FILE, manifest_text};
-use datasets::split::{GroupBy, SplitRatios, split_items};
+use datasets::split::{GroupBy, SplitRatios, assign_groups, split_items};
 
 use super::open_dataset;
 use crate::commands::Context;
@@ -46,6 +46,16 @@ pub struct SplitArgs {
     /// What must stay in one split.
     #[arg(long, value_enum, default_value = "source")]
     pub group_by: GroupByArg,
+
+    /// Put this group (e.g. a CamVid sequence with `--group-by prefix`) in validation;
+    /// repeatable or comma-separated. With --val-group or --test-group, the named groups
+    /// go to their splits and every other group to training (the shares are not used).
+    #[arg(long, value_name = "GROUP", value_delimiter = ',')]
+    pub val_group: Vec<String>,
+
+    /// Put this group in the test split; as --val-group.
+    #[arg(long, value_name = "GROUP", value_delimiter = ',')]
+    pub test_group: Vec<String>,
 }
 
 pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
@@ -66,15 +76,41 @@ pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
         GroupByArg::None => GroupBy::None,
     };
     let mut dataset = open_dataset(&args.dataset)?;
-    let counts = split_items(&mut dataset.items, &ratios, ctx.cli.seed, group_by);
+    let named = !args.val_group.is_empty() || !args.test_group.is_empty();
+    let counts = if named {
+        assign_groups(
+            &mut dataset.items,
+            group_by,
+            &args.val_group,
+            &args.test_group,
+        )
+        .map_err(|m| {
+            CliError::file(
+                &args.dataset,
+                m,
+                "name groups its items have (with --group-by prefix, the id up to its first `_`)",
+            )
+        })?
+    } else {
+        split_items(&mut dataset.items, &ratios, ctx.cli.seed, group_by)
+    };
     let manifest = args.dataset.join(MANIFEST_FILE);
     let text = manifest_text(&manifest, &dataset.items)?;
-    let record = serde_json::json!({
-        "ratios": ratios,
-        "group_by": group_by,
-        "seed": ctx.cli.seed,
-        "counts": counts,
-    });
+    let record = if named {
+        serde_json::json!({
+            "group_by": group_by,
+            "val_groups": args.val_group,
+            "test_groups": args.test_group,
+            "counts": counts,
+        })
+    } else {
+        serde_json::json!({
+            "ratios": ratios,
+            "group_by": group_by,
+            "seed": ctx.cli.seed,
+            "counts": counts,
+        })
+    };
     let mut json = serde_json::to_string_pretty(&record)?;
     json.push('\n');
     write_file_atomic(&args.dataset.join(SPLIT_JSON), json.as_bytes())?;
