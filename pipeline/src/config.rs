@@ -185,18 +185,37 @@ mod tests {
         Ok(())
     }
 
-    /// The TOML files of `configs/` (the recipes the docs present), sorted: the segmenter's
-    /// settings (`segmenter_*.toml`, for `segmenter train --settings`) or the others
-    /// (`--config` files).
-    fn documented_configs(segmenter: bool) -> Result<Vec<PathBuf>, String> {
+    /// What a file of `configs/` is for, by its name's prefix.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    enum Recipe {
+        /// `segmenter_*.toml`: `segmenter train --settings`.
+        Segmenter,
+        /// `augment_*.toml`: `dataset augment --transforms`.
+        Transforms,
+        /// The others: `--config` files.
+        Pipeline,
+    }
+
+    /// The TOML files of `configs/` (the recipes the docs present) of one kind, sorted.
+    fn documented_configs(kind: Recipe) -> Result<Vec<PathBuf>, String> {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
         let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
             .map_err(|e| format!("{}: {e}", dir.display()))?
             .filter_map(|entry| entry.ok().map(|e| e.path()))
             .filter(|path| path.extension().is_some_and(|e| e == "toml"))
             .filter(|path| {
-                let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
-                name.is_some_and(|n| n.starts_with("segmenter_")) == segmenter
+                let name = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                let of = if name.starts_with("segmenter_") {
+                    Recipe::Segmenter
+                } else if name.starts_with("augment_") {
+                    Recipe::Transforms
+                } else {
+                    Recipe::Pipeline
+                };
+                of == kind
             })
             .collect();
         files.sort();
@@ -207,7 +226,7 @@ mod tests {
     /// removed option must fail here, not months later in someone's hour-long training run.
     #[test]
     fn every_documented_config_file_reads_and_its_dqn_settings_validate() -> Result<(), String> {
-        let files = documented_configs(false)?;
+        let files = documented_configs(Recipe::Pipeline)?;
         assert!(!files.is_empty(), "no config files in configs/");
         for file in &files {
             let config = Config::load(Some(file)).map_err(|e| format!("{e:#}"))?;
@@ -224,11 +243,33 @@ mod tests {
     /// still read as a training config and pass its checks.
     #[test]
     fn every_documented_segmenter_settings_file_reads_and_validates() -> Result<(), String> {
-        let files = documented_configs(true)?;
+        let files = documented_configs(Recipe::Segmenter)?;
         assert!(!files.is_empty(), "no segmenter settings in configs/");
         for file in &files {
             let config = models::segmenter::train::load_training_config(file)
                 .map_err(|e| format!("{}: {e}", file.display()))?;
+            config
+                .validate()
+                .map_err(|e| format!("{}: {e}", file.display()))?;
+        }
+        Ok(())
+    }
+
+    /// The augmentation transforms of `configs/` (`dataset augment --transforms FILE`) must
+    /// still read (an unknown key is an error) and pass their checks.
+    #[test]
+    fn every_documented_transforms_file_reads_and_validates() -> Result<(), String> {
+        let read = |file: &PathBuf| {
+            std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))
+        };
+        let transforms = documented_configs(Recipe::Transforms)?;
+        assert!(
+            !transforms.is_empty(),
+            "no augmentation transforms in configs/"
+        );
+        for file in &transforms {
+            let config: datasets::augment::AugmentConfig =
+                toml::from_str(&read(file)?).map_err(|e| format!("{}: {e}", file.display()))?;
             config
                 .validate()
                 .map_err(|e| format!("{}: {e}", file.display()))?;
