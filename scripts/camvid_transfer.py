@@ -39,8 +39,11 @@ VAL_SEQUENCE, TEST_SEQUENCE = "0001TP", "0006R0"
 
 def run(cmd, log=None):
     print("+", " ".join(str(c) for c in cmd), flush=True)
-    out = open(log, "w") if log else None
-    subprocess.run([str(c) for c in cmd], check=True, stdout=out, stderr=subprocess.STDOUT if out else None)
+    if log is None:
+        subprocess.run([str(c) for c in cmd], check=True)
+        return
+    with open(log, "w") as out:
+        subprocess.run([str(c) for c in cmd], check=True, stdout=out, stderr=subprocess.STDOUT)
 
 
 def pipeline_cmd(args):

@@ -75,6 +75,15 @@ pub fn group_key(item: &Item, by: GroupBy) -> String {
     }
 }
 
+/// The items' indices by group key.
+fn groups(items: &[Item], by: GroupBy) -> BTreeMap<String, Vec<usize>> {
+    let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    for (i, item) in items.iter().enumerate() {
+        groups.entry(group_key(item, by)).or_default().push(i);
+    }
+    groups
+}
+
 /// FNV-1a of the seed and a key, finished with splitmix: a stable rank.
 fn rank(seed: u64, key: &str) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -102,10 +111,7 @@ pub fn split_items(
     seed: u64,
     by: GroupBy,
 ) -> SplitCounts {
-    let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
-    for (i, item) in items.iter().enumerate() {
-        groups.entry(group_key(item, by)).or_default().push(i);
-    }
+    let groups = groups(items, by);
     let mut ordered: Vec<(u64, &String, &Vec<usize>)> =
         groups.iter().map(|(k, v)| (rank(seed, k), k, v)).collect();
     ordered.sort();
@@ -147,10 +153,7 @@ pub fn assign_groups(
     if let Some(both) = val.iter().find(|g| test.contains(g)) {
         return Err(format!("group `{both}` is named for both val and test"));
     }
-    let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
-    for (i, item) in items.iter().enumerate() {
-        groups.entry(group_key(item, by)).or_default().push(i);
-    }
+    let groups = groups(items, by);
     if let Some(missing) = val.iter().chain(test).find(|g| !groups.contains_key(*g)) {
         let known: Vec<&str> = groups.keys().take(12).map(String::as_str).collect();
         return Err(format!(

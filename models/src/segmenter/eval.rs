@@ -124,10 +124,7 @@ mod tests {
     fn each_image_keeps_its_matrix_and_they_sum_to_the_totals() {
         let tmp = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
         let device = Device::flex();
-        let config = PspNetConfig::new()
-            .with_width(0.125)
-            .with_blocks(vec![1, 1, 1, 1])
-            .with_psp_channels(8);
+        let config = crate::segmenter::model::tiny_test_config();
         let model = config
             .init_seeded(&device, 1)
             .unwrap_or_else(|e| panic!("{e}"));

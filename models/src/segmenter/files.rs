@@ -214,10 +214,7 @@ mod tests {
     fn a_folder_without_a_record_is_read_from_its_safetensors() {
         let tmp = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
         let device = Device::flex();
-        let config = PspNetConfig::new()
-            .with_width(0.125)
-            .with_blocks(vec![1, 1, 1, 1])
-            .with_psp_channels(8);
+        let config = crate::segmenter::model::tiny_test_config();
         let model = config
             .init_seeded(&device, 3)
             .unwrap_or_else(|e| panic!("{e}"));

@@ -233,11 +233,7 @@ mod tests {
     /// A tiny untrained network with weights from `seed`, its config and device.
     fn tiny_network(seed: u64) -> (PspNet, PspNetConfig, Device) {
         let device = Device::flex();
-        let config = PspNetConfig::new()
-            .with_width(0.125)
-            .with_blocks(vec![1, 1, 1, 1])
-            .with_psp_channels(16)
-            .with_skip_channels(8);
+        let config = crate::segmenter::model::tiny_test_config();
         let model = config
             .init_seeded(&device, seed)
             .unwrap_or_else(|e| panic!("{e}"));

@@ -787,24 +787,28 @@ fn channel_dropout(x: Tensor<4>, p: f64, seed: u64) -> Tensor<4> {
     x * mask
 }
 
+/// The segmenter crate's tests' network: width 1/8 (stem 8 channels), one block per stage,
+/// stride-4 refinement of 8 channels.
+#[cfg(test)]
+pub(crate) fn tiny_test_config() -> PspNetConfig {
+    PspNetConfig::new()
+        .with_width(0.125)
+        .with_blocks(vec![1, 1, 1, 1])
+        .with_psp_channels(16)
+        .with_skip_channels(8)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// Width 1/8 (stem 8 channels), one block per stage, stride-4 refinement of 8 channels.
-    fn tiny() -> PspNetConfig {
-        PspNetConfig::new()
-            .with_width(0.125)
-            .with_blocks(vec![1, 1, 1, 1])
-            .with_psp_channels(16)
-            .with_skip_channels(8)
-    }
-
     #[test]
     fn the_fine_refinement_predicts_at_the_input_size_and_counts_its_convolutions() {
         let device = Device::flex();
-        let coarse = tiny().init(&device).unwrap_or_else(|e| panic!("{e}"));
-        let fine = tiny()
+        let coarse = tiny_test_config()
+            .init(&device)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let fine = tiny_test_config()
             .with_fine_skip_channels(4)
             .init(&device)
             .unwrap_or_else(|e| panic!("{e}"));
@@ -822,8 +826,13 @@ mod tests {
     #[test]
     fn the_mid_refinement_needs_depth_4_and_counts_its_convolutions() {
         let device = Device::flex();
-        assert!(tiny().with_mid_skip_channels(4).init(&device).is_err());
-        let deep = tiny().with_depth(4);
+        assert!(
+            tiny_test_config()
+                .with_mid_skip_channels(4)
+                .init(&device)
+                .is_err()
+        );
+        let deep = tiny_test_config().with_depth(4);
         let plain = deep.init(&device).unwrap_or_else(|e| panic!("{e}"));
         let mid = deep
             .with_mid_skip_channels(4)
