@@ -17,6 +17,7 @@
 use std::cell::Cell;
 
 use burn::nn::conv::Conv2d;
+use burn::nn::pool::MaxPool2d;
 use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use burn::tensor::ops::ConvOptions;
@@ -33,7 +34,32 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     {
         return torch::conv2d(layer, x, options);
     }
+    if flex::is_flex(&x.device())
+        && x.dtype() == burn::tensor::DType::F32
+        && layer.groups == 1
+        && let Some(options) = symmetric_options(layer)
+    {
+        return flex::conv2d(layer, x, options);
+    }
     layer.forward(x)
+}
+
+/// `pool.forward(x)`; on the flex backend by [`kernels::pool`] (burn-flex pools through its
+/// 3-D kernel with indices).
+///
+/// Shapes: `x` is `[batch, channels, height, width]`; the result `[batch, channels, height_out,
+/// width_out]`, as `MaxPool2d::forward`.
+pub fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
+    if flex::is_flex(&x.device())
+        && x.dtype() == burn::tensor::DType::F32
+        && pool.dilation == [1, 1]
+        && !pool.ceil_mode
+        && let Some(padding) = symmetric_padding(&pool.padding)
+        && flex::pool_geometry(x.dims(), pool.kernel_size, pool.stride, padding).is_some()
+    {
+        return flex::max_pool2d(x, pool.kernel_size, pool.stride, padding);
+    }
+    pool.forward(x)
 }
 
 /// `norm.forward(x)`, with LibTorch's batch norm and its backward pass when training on the
@@ -101,17 +127,21 @@ pub fn bf16_convolutions_run_on(device: &burn::tensor::Device) -> bool {
     }
 }
 
+/// `[vertical, horizontal]` padding when it is the same on both sides of each axis.
+fn symmetric_padding(padding: &PaddingConfig2d) -> Option<[usize; 2]> {
+    match *padding {
+        PaddingConfig2d::Valid => Some([0, 0]),
+        PaddingConfig2d::Explicit(top, left, bottom, right) if top == bottom && left == right => {
+            Some([top, left])
+        }
+        _ => None,
+    }
+}
+
 /// The layer's convolution options when its padding is the same on both sides of each axis
 /// (every layer of our networks); `None` sends the layer through `Conv2d::forward`.
-#[cfg_attr(not(feature = "libtorch"), allow(dead_code))]
 fn symmetric_options(layer: &Conv2d) -> Option<ConvOptions<2>> {
-    let padding = match layer.padding {
-        PaddingConfig2d::Valid => [0, 0],
-        PaddingConfig2d::Explicit(top, left, bottom, right) if top == bottom && left == right => {
-            [top, left]
-        }
-        _ => return None,
-    };
+    let padding = symmetric_padding(&layer.padding)?;
     Some(ConvOptions::new(
         layer.stride,
         padding,
@@ -119,6 +149,8 @@ fn symmetric_options(layer: &Conv2d) -> Option<ConvOptions<2>> {
         layer.groups,
     ))
 }
+
+pub mod flex;
 
 #[cfg(feature = "libtorch")]
 // burn 0.22 marks LibTorch deprecated (models::device says why we use it).

@@ -468,7 +468,7 @@ impl Encoder {
     /// [B, C_0, H / 2, W / 2], stages: [[B, C_s, H / stride_s, W / stride_s]; stages] }`.
     pub fn forward(&self, images: Tensor<4>) -> EncoderFeatures {
         let stem = relu(self.stem.forward(images));
-        let mut x = self.pool.forward(stem.clone());
+        let mut x = crate::layers::max_pool2d(&self.pool, stem.clone());
         let mut stages = Vec::with_capacity(self.stages.len());
         for stage in &self.stages {
             x = stage.forward(x);
