@@ -7,4 +7,5 @@
 //! thread count.
 
 pub mod conv;
+pub mod norm;
 pub mod pool;

@@ -71,6 +71,14 @@ pub fn batch_norm(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
     if torch::trains_on_libtorch(&x) && norm.training.is_enabled() {
         return torch::batch_norm_train(norm, x);
     }
+    let device = x.device();
+    if device.is_autodiff()
+        && norm.training.is_enabled()
+        && flex::is_flex(&device)
+        && x.dtype() == burn::tensor::DType::F32
+    {
+        return flex::batch_norm_train(norm, x);
+    }
     norm.forward(x)
 }
 

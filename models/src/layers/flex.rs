@@ -8,12 +8,14 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::ops::ModuleOps;
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{Autodiff, Backend, Dispatch, Flex, backend_extension};
+use burn::backend::{Autodiff, AutodiffBackend, Backend, Dispatch, Flex, backend_extension};
+use burn::nn::BatchNorm;
 use burn::nn::conv::Conv2d;
 use burn::tensor::ops::ConvOptions;
 use burn::tensor::{DType, Device, Tensor, TensorData};
 
 use kernels::conv::{self as cpu_conv, Conv2dGeometry};
+use kernels::norm::{self as cpu_norm, NormGeometry};
 use kernels::pool::{self as cpu_pool, Pool2dGeometry};
 
 type FlexTensor = FloatTensor<Flex>;
@@ -72,6 +74,16 @@ pub trait FlexLayers: Backend {
         options: ConvOptions<2>,
     ) -> FloatTensor<Self>;
 
+    /// Batch norm with the batch's statistics: the output, and the batch's mean and biased
+    /// variance per channel (as burn's `batch_norm_train`). `x` is `[batch, channels, height,
+    /// width]` in f32.
+    fn batch_norm_train_flex(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+
     /// Max pooling of `x` (f32, contiguous or not) over a valid [`Pool2dGeometry`] (the
     /// caller checks: [`pool_geometry`]).
     fn max_pool2d_flex(
@@ -94,6 +106,20 @@ impl FlexLayers for Flex {
         options: ConvOptions<2>,
     ) -> FlexTensor {
         forward(x, weight, Some(bias), options)
+    }
+
+    fn batch_norm_train_flex(
+        x: FlexTensor,
+        gamma: FlexTensor,
+        beta: FlexTensor,
+        epsilon: f64,
+    ) -> (FlexTensor, FlexTensor, FlexTensor) {
+        norm_forward(
+            &x.to_contiguous(),
+            &gamma.to_contiguous(),
+            &beta.to_contiguous(),
+            epsilon,
+        )
     }
 
     fn max_pool2d_flex(
@@ -124,6 +150,36 @@ impl<C: CheckpointStrategy> FlexLayers for Autodiff<Flex, C> {
         differentiated::<C, 3>([x, weight, bias], options)
     }
 
+    fn batch_norm_train_flex(
+        x: FloatTensor<Self>,
+        gamma: FloatTensor<Self>,
+        beta: FloatTensor<Self>,
+        epsilon: f64,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let (x, x_node) = x.into_parts();
+        let (gamma, gamma_node) = gamma.into_parts();
+        let (beta, beta_node) = beta.into_parts();
+        let (x, gamma) = (x.to_contiguous(), gamma.to_contiguous());
+        let (output, mean, variance) = norm_forward(&x, &gamma, &beta.to_contiguous(), epsilon);
+        let constant = |t: FlexTensor| <Self as AutodiffBackend>::from_inner(t);
+        let state = NormState {
+            x,
+            gamma,
+            mean: mean.clone(),
+            variance: variance.clone(),
+            epsilon,
+        };
+        let output = match NormBackward
+            .prepare::<C>([x_node, gamma_node, beta_node])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish(state, output),
+            OpsKind::UnTracked(prep) => prep.finish(output),
+        };
+        (output, constant(mean), constant(variance))
+    }
+
     fn max_pool2d_flex(
         x: FloatTensor<Self>,
         kernel: [usize; 2],
@@ -144,6 +200,123 @@ impl<C: CheckpointStrategy> FlexLayers for Autodiff<Flex, C> {
             OpsKind::UnTracked(prep) => prep.finish(output),
         }
     }
+}
+
+fn norm_geometry(x: &FlexTensor) -> NormGeometry {
+    let s = x.layout().shape();
+    NormGeometry {
+        batch: s[0],
+        channels: s[1],
+        pixels: s[2..].iter().product(),
+    }
+}
+
+fn norm_forward(
+    x: &FlexTensor,
+    gamma: &FlexTensor,
+    beta: &FlexTensor,
+    epsilon: f64,
+) -> (FlexTensor, FlexTensor, FlexTensor) {
+    let g = norm_geometry(x);
+    let mut out = vec![0.0; g.len()];
+    let (mut mean, mut variance) = (vec![0.0; g.channels], vec![0.0; g.channels]);
+    cpu_norm::batch_norm_train_forward(
+        &g,
+        x.storage::<f32>(),
+        gamma.storage::<f32>(),
+        beta.storage::<f32>(),
+        epsilon,
+        &mut out,
+        &mut mean,
+        &mut variance,
+    );
+    let channels = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [g.channels]));
+    let out = FlexTensor::from_data(TensorData::new(out, x.layout().shape().to_vec()));
+    (out, channels(mean), channels(variance))
+}
+
+#[derive(Debug, Clone)]
+struct NormState {
+    x: FlexTensor,
+    gamma: FlexTensor,
+    mean: FlexTensor,
+    variance: FlexTensor,
+    epsilon: f64,
+}
+
+#[derive(Debug)]
+struct NormBackward;
+
+impl Backward<Flex, 3> for NormBackward {
+    type State = NormState;
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let grad: FlexTensor = grads.consume::<Flex>(&ops.node);
+        let NormState {
+            x,
+            gamma,
+            mean,
+            variance,
+            epsilon,
+        } = ops.state;
+        let g = norm_geometry(&x);
+        let grad = grad.to_contiguous();
+        let mut dx = vec![0.0; g.len()];
+        let (mut dgamma, mut dbeta) = (vec![0.0; g.channels], vec![0.0; g.channels]);
+        cpu_norm::batch_norm_train_backward(
+            &g,
+            x.storage::<f32>(),
+            gamma.storage::<f32>(),
+            mean.storage::<f32>(),
+            variance.storage::<f32>(),
+            epsilon,
+            grad.storage::<f32>(),
+            &mut dx,
+            &mut dgamma,
+            &mut dbeta,
+        );
+        let shape = x.layout().shape().to_vec();
+        let [x_parent, gamma_parent, beta_parent] = &ops.parents;
+        if let Some(parent) = x_parent {
+            grads.register::<Flex>(parent.id, FlexTensor::from_data(TensorData::new(dx, shape)));
+        }
+        let channels = |v: Vec<f32>| FlexTensor::from_data(TensorData::new(v, [g.channels]));
+        if let Some(parent) = gamma_parent {
+            grads.register::<Flex>(parent.id, channels(dgamma));
+        }
+        if let Some(parent) = beta_parent {
+            grads.register::<Flex>(parent.id, channels(dbeta));
+        }
+    }
+}
+
+/// `BatchNorm::forward` in training: normalise with the batch's statistics and move the
+/// running ones towards them by the layer's momentum.
+pub(super) fn batch_norm_train(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
+    let (output, mean, variance) = <Dispatch as FlexLayers>::batch_norm_train_flex(
+        x.into_dispatch(),
+        norm.gamma.val().into_dispatch(),
+        norm.beta.val().into_dispatch(),
+        norm.epsilon,
+    );
+    let (mean, variance) = (
+        Tensor::<1>::from_dispatch(mean),
+        Tensor::<1>::from_dispatch(variance),
+    );
+    let device = mean.device();
+    let momentum = norm.momentum;
+    let moved = |running: Tensor<1>, batch: Tensor<1>| {
+        running
+            .to_device(&device)
+            .mul_scalar(1.0 - momentum)
+            .add(batch.detach().mul_scalar(momentum))
+            .detach()
+    };
+    norm.running_mean
+        .update(moved(norm.running_mean.value_sync(), mean));
+    norm.running_var
+        .update(moved(norm.running_var.value_sync(), variance));
+    Tensor::from_dispatch(output)
 }
 
 /// The pooling's geometry for an input of `shape`, when the kernel applies: 4 dimensions, no
@@ -363,9 +536,9 @@ fn differentiated<C: CheckpointStrategy, const N: usize>(
 #[cfg(test)]
 mod tests {
     use burn::module::Module;
-    use burn::nn::PaddingConfig2d;
     use burn::nn::conv::Conv2dConfig;
     use burn::nn::pool::MaxPool2dConfig;
+    use burn::nn::{BatchNormConfig, PaddingConfig2d};
     use burn::tensor::{Device, Distribution, Tensor};
 
     use crate::qnet::tensor_values as values;
@@ -381,7 +554,7 @@ mod tests {
         }
     }
 
-    /// Gradients of `sum(pool(conv(x)) * r)` with respect to `x` and the parameters, through
+    /// Gradients of `sum(pool(norm(conv(x))) * r)` with respect to `x` and the parameters, through
     /// ours and through burn's layers.
     #[test]
     fn convolution_and_pooling_have_burns_outputs_and_gradients() {
@@ -410,11 +583,15 @@ mod tests {
             let out_dims = pool.forward(conv.forward(x.clone())).dims();
             let r = Tensor::<4>::random(out_dims, Distribution::Normal(0.0, 1.0), &device);
             let run = |ours: bool| {
+                // A fresh batch norm each time: a forward pass in training moves its running
+                // statistics.
+                let norm = BatchNormConfig::new(4).init(&device);
                 let x = x.clone().detach().require_grad();
                 let y = if ours {
-                    super::super::max_pool2d(&pool, super::super::conv2d(&conv, x.clone()))
+                    let y = super::super::batch_norm(&norm, super::super::conv2d(&conv, x.clone()));
+                    super::super::max_pool2d(&pool, y)
                 } else {
-                    pool.forward(conv.forward(x.clone()))
+                    pool.forward(norm.forward(conv.forward(x.clone())))
                 };
                 let grads = (y.clone() * r.clone()).sum().backward();
                 let mut out = vec![
@@ -426,6 +603,10 @@ mod tests {
                             .grad(&grads)
                             .expect("the weight's gradient"),
                     ),
+                    values(norm.gamma.val().grad(&grads).expect("gamma's gradient")),
+                    values(norm.beta.val().grad(&grads).expect("beta's gradient")),
+                    values(norm.running_mean.value_sync()),
+                    values(norm.running_var.value_sync()),
                 ];
                 if let Some(b) = &conv.bias {
                     out.push(values(b.val().grad(&grads).expect("the bias's gradient")));
@@ -433,11 +614,16 @@ mod tests {
                 out
             };
             let what = format!("kernel {kernel} stride {stride} pad {pad} dilation {dilation}");
-            for ((a, b), name) in run(true)
-                .into_iter()
-                .zip(run(false))
-                .zip(["output", "x", "weight", "bias"])
-            {
+            for ((a, b), name) in run(true).into_iter().zip(run(false)).zip([
+                "output",
+                "x",
+                "weight",
+                "gamma",
+                "beta",
+                "running mean",
+                "running var",
+                "bias",
+            ]) {
                 assert_close(a, b, &format!("{what}: {name}"));
             }
             // Without autodiff (inference) too.
