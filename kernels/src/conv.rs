@@ -703,7 +703,11 @@ mod tests {
                 dilation: d,
             }
         };
+        // Small maps: several images to a product.
+        let mut many = g(5, 6, 7, 6, [3, 3], [2, 2], [1, 1], [1, 1]);
+        many.batch = 9;
         vec![
+            many,
             g(3, 13, 11, 4, [7, 7], [2, 2], [3, 3], [1, 1]),
             g(5, 9, 10, 6, [3, 3], [1, 1], [1, 1], [1, 1]),
             g(5, 9, 10, 6, [3, 3], [2, 2], [1, 1], [1, 1]),
