@@ -796,4 +796,55 @@ mod tests {
             assert_close(&db, &truth_db, &format!("db {g:?}"));
         }
     }
+
+    /// The same bytes whatever the number of threads.
+    #[test]
+    fn results_do_not_depend_on_the_thread_count() {
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a pool");
+            pool.install(|| {
+                // The last geometry is large enough for gemm to share its products among threads.
+                let mut shapes = geometries();
+                shapes.push(Conv2dGeometry {
+                    batch: 2,
+                    channels_in: 32,
+                    height: 24,
+                    width: 24,
+                    channels_out: 64,
+                    kernel: [3, 3],
+                    stride: [1, 1],
+                    padding: [1, 1],
+                    dilation: [1, 1],
+                });
+                shapes
+                    .into_iter()
+                    .map(|g| {
+                        let (x, w, gy) = (
+                            values(g.input_len(), 7),
+                            values(g.weight_len(), 8),
+                            values(g.output_len(), 9),
+                        );
+                        let mut out = vec![0.0; g.output_len()];
+                        conv2d_forward(&g, &x, &w, Some(&gy[..g.channels_out]), &mut out);
+                        let mut dx = vec![0.0; g.input_len()];
+                        conv2d_backward_input(&g, &gy, &w, &mut dx);
+                        let (mut dw, mut db) =
+                            (vec![0.0; g.weight_len()], vec![0.0; g.channels_out]);
+                        conv2d_backward_weight(&g, &x, &gy, &mut dw, Some(&mut db));
+                        [out, dx, dw, db]
+                            .concat()
+                            .iter()
+                            .map(|v| v.to_bits())
+                            .collect::<Vec<u32>>()
+                    })
+                    .collect::<Vec<_>>()
+            })
+        };
+        let one = run(1);
+        assert_eq!(one, run(2));
+        assert_eq!(one, run(5));
+    }
 }

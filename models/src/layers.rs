@@ -15,12 +15,26 @@
 //! as PyTorch's CPU autocast does: the weights, gradients and every other layer stay in f32.
 
 use std::cell::Cell;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use burn::nn::conv::Conv2d;
 use burn::nn::pool::MaxPool2d;
 use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::tensor::Tensor;
 use burn::tensor::ops::ConvOptions;
+
+static OWN_KERNELS: AtomicBool = AtomicBool::new(true);
+
+/// Whether the flex backend's layers run on the `kernels` crate (the default) or on burn-flex's
+/// own kernels, for the whole process: the second is for comparing the two (the `pipeline`
+/// binary sets it from `PIPELINE_BURN_KERNELS=1`; docs/benchmarks.md).
+pub fn use_own_kernels(on: bool) {
+    OWN_KERNELS.store(on, Ordering::Relaxed);
+}
+
+fn own_kernels_on(device: &burn::tensor::Device) -> bool {
+    OWN_KERNELS.load(Ordering::Relaxed) && flex::is_flex(device)
+}
 
 /// `layer.forward(x)`. On the LibTorch backend, with the channels stored last (the layout in
 /// which LibTorch's CPU convolutions run fastest) and, when training, LibTorch's backward pass.
@@ -34,7 +48,7 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     {
         return torch::conv2d(layer, x, options);
     }
-    if flex::is_flex(&x.device())
+    if own_kernels_on(&x.device())
         && x.dtype() == burn::tensor::DType::F32
         && layer.groups == 1
         && let Some(options) = symmetric_options(layer)
@@ -50,7 +64,7 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// Shapes: `x` is `[batch, channels, height, width]`; the result `[batch, channels, height_out,
 /// width_out]`, as `MaxPool2d::forward`.
 pub fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
-    if flex::is_flex(&x.device())
+    if own_kernels_on(&x.device())
         && x.dtype() == burn::tensor::DType::F32
         && pool.dilation == [1, 1]
         && !pool.ceil_mode
@@ -74,7 +88,7 @@ pub fn batch_norm(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
     let device = x.device();
     if device.is_autodiff()
         && norm.training.is_enabled()
-        && flex::is_flex(&device)
+        && own_kernels_on(&device)
         && x.dtype() == burn::tensor::DType::F32
     {
         return flex::batch_norm_train(norm, x);

@@ -13,6 +13,11 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn main() -> ExitCode {
     models::allocator::keep_freed_memory();
+    // burn-flex's own convolutions, pooling and batch norms instead of the kernels crate's, to
+    // compare the two (docs/benchmarks.md).
+    if std::env::var_os("PIPELINE_BURN_KERNELS").is_some_and(|v| v == "1") {
+        models::layers::use_own_kernels(false);
+    }
     let cli = pipeline::Cli::parse();
     let verbosity = cli.verbosity();
     pipeline::ui::init_logging(verbosity);
