@@ -413,6 +413,27 @@ fn interleave(src: &[f32], dst: &mut [f32], channels: usize, n: usize, inverse: 
     }
 }
 
+/// `col[K, G · N]` of a block of `G` images: the block itself when `direct` (a 1 × 1
+/// convolution with stride 1 and no padding, one image a product), else built in `buffer`.
+fn patch_columns<'a>(
+    g: &Conv2dGeometry,
+    block: &'a [f32],
+    direct: bool,
+    buffer: &'a mut [f32],
+) -> &'a [f32] {
+    if direct {
+        return block;
+    }
+    let images = block.len() / (g.channels_in * g.input_plane());
+    let col = &mut buffer[..g.patch_len() * g.output_plane() * images];
+    if g.is_pointwise() {
+        interleave(block, col, g.patch_len(), g.output_plane(), false);
+    } else {
+        im2col(g, block, col);
+    }
+    col
+}
+
 /// `out[B, C_out, H_out, W_out] = conv(x[B, C_in, H, W], weight[C_out, C_in, k_h, k_w]) + bias`.
 pub fn conv2d_forward(
     g: &Conv2dGeometry,
@@ -442,16 +463,7 @@ pub fn conv2d_forward(
     };
     for b0 in (0..g.batch).step_by(group) {
         let images = group.min(g.batch - b0);
-        let cols = (images * n, &x[b0 * in_len..(b0 + images) * in_len]);
-        let cols: &[f32] = if direct {
-            cols.1
-        } else if g.is_pointwise() {
-            interleave(cols.1, &mut col[..k * cols.0], k, n, false);
-            &col[..k * cols.0]
-        } else {
-            im2col(g, cols.1, &mut col[..k * cols.0]);
-            &col[..k * cols.0]
-        };
+        let cols = patch_columns(g, &x[b0 * in_len..(b0 + images) * in_len], direct, &mut col);
         let out_block = &mut out[b0 * m * n..(b0 + images) * m * n];
         let dst: &mut [f32] = if group > 1 {
             &mut grouped[..m * n * images]
@@ -541,30 +553,21 @@ pub fn conv2d_backward_weight(
     } else {
         vec![0.0; k * n * group]
     };
-    let mut grad_t = vec![0.0; n * group * m];
+    let mut grad_grouped = vec![0.0; n * group * m];
     let mut dw_t = vec![0.0; k * m];
     let mut first = true;
     for b0 in (0..g.batch).step_by(group) {
         let images = group.min(g.batch - b0);
         let columns = images * n;
-        let block = &x[b0 * in_len..(b0 + images) * in_len];
-        let cols: &[f32] = if direct {
-            block
-        } else if g.is_pointwise() {
-            interleave(block, &mut col[..k * columns], k, n, false);
-            &col[..k * columns]
-        } else {
-            im2col(g, block, &mut col[..k * columns]);
-            &col[..k * columns]
-        };
-        // dWᵀ[K, C_out] = col[K, G · N] · gradᵀ[G · N, C_out], gradᵀ copied so that both
-        // operands are read along rows. The sum over the columns runs in fixed slices, one
+        let cols = patch_columns(g, &x[b0 * in_len..(b0 + images) * in_len], direct, &mut col);
+        // dWᵀ[K, C_out] = col[K, G · N] · gradᵀ[G · N, C_out], gradᵀ read as a transposed view of
+        // the images' gradients side by side. The sum over the columns runs in fixed slices, one
         // task each, added in order: the products are too small in K and C_out to share among
         // threads otherwise.
         let grad_block = &grad[b0 * m * n..(b0 + images) * m * n];
         let grouped: &[f32] = if images > 1 {
-            interleave(grad_block, &mut grad_t[..columns * m], m, n, false);
-            &grad_t[..columns * m]
+            interleave(grad_block, &mut grad_grouped[..columns * m], m, n, false);
+            &grad_grouped[..columns * m]
         } else {
             grad_block
         };

@@ -149,6 +149,24 @@ pub fn bf16_convolutions_run_on(device: &burn::tensor::Device) -> bool {
     }
 }
 
+/// Moves `norm`'s running statistics towards a batch's `mean` and biased `variance` by the
+/// layer's momentum, as `BatchNorm::forward` does in training.
+fn move_running_statistics(norm: &BatchNorm, mean: Tensor<1>, variance: Tensor<1>) {
+    let device = mean.device();
+    let momentum = norm.momentum;
+    let moved = |running: Tensor<1>, batch: Tensor<1>| {
+        running
+            .to_device(&device)
+            .mul_scalar(1.0 - momentum)
+            .add(batch.detach().mul_scalar(momentum))
+            .detach()
+    };
+    norm.running_mean
+        .update(moved(norm.running_mean.value_sync(), mean));
+    norm.running_var
+        .update(moved(norm.running_var.value_sync(), variance));
+}
+
 /// `[vertical, horizontal]` padding when it is the same on both sides of each axis.
 fn symmetric_padding(padding: &PaddingConfig2d) -> Option<[usize; 2]> {
     match *padding {
@@ -240,23 +258,11 @@ pub mod torch {
             norm.beta.val().into_dispatch(),
             norm.epsilon,
         );
-        let (mean, variance) = (
-            Tensor::<1>::from_dispatch(mean),
-            Tensor::<1>::from_dispatch(variance),
+        super::move_running_statistics(
+            norm,
+            Tensor::from_dispatch(mean),
+            Tensor::from_dispatch(variance),
         );
-        let device = mean.device();
-        let momentum = norm.momentum;
-        let moved = |running: Tensor<1>, batch: Tensor<1>| {
-            running
-                .to_device(&device)
-                .mul_scalar(1.0 - momentum)
-                .add(batch.detach().mul_scalar(momentum))
-                .detach()
-        };
-        norm.running_mean
-            .update(moved(norm.running_mean.value_sync(), mean));
-        norm.running_var
-            .update(moved(norm.running_var.value_sync(), variance));
         Tensor::from_dispatch(output)
     }
 

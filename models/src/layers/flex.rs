@@ -299,23 +299,11 @@ pub(super) fn batch_norm_train(norm: &BatchNorm, x: Tensor<4>) -> Tensor<4> {
         norm.beta.val().into_dispatch(),
         norm.epsilon,
     );
-    let (mean, variance) = (
-        Tensor::<1>::from_dispatch(mean),
-        Tensor::<1>::from_dispatch(variance),
+    super::move_running_statistics(
+        norm,
+        Tensor::from_dispatch(mean),
+        Tensor::from_dispatch(variance),
     );
-    let device = mean.device();
-    let momentum = norm.momentum;
-    let moved = |running: Tensor<1>, batch: Tensor<1>| {
-        running
-            .to_device(&device)
-            .mul_scalar(1.0 - momentum)
-            .add(batch.detach().mul_scalar(momentum))
-            .detach()
-    };
-    norm.running_mean
-        .update(moved(norm.running_mean.value_sync(), mean));
-    norm.running_var
-        .update(moved(norm.running_var.value_sync(), variance));
     Tensor::from_dispatch(output)
 }
 
