@@ -68,7 +68,7 @@ fn assert_clean_failure(out: &std::process::Output, root: &Path, dest: &Path, fi
 fn each_kind_of_broken_item_is_a_clear_error_or_a_counted_skip() {
     // (what breaks, the file the error must name, how to break it)
     type Breakage = (&'static str, &'static str, fn(&Path));
-    let cases: [Breakage; 4] = [
+    let cases: [Breakage; 5] = [
         ("label of the wrong size", "bad.png", |src| {
             RgbImage::new(W, H)
                 .save(src.join("images/bad.png"))
@@ -94,6 +94,21 @@ fn each_kind_of_broken_item_is_a_clear_error_or_a_counted_skip() {
         ("image file that is not an image", "bad.png", |src| {
             std::fs::write(src.join("images/bad.png"), b"this is not a PNG").unwrap();
             GrayImage::new(W, H)
+                .save(src.join("labels/bad.png"))
+                .unwrap();
+        }),
+        // Cut in its scan data: the image crate alone decodes it into a grey-bottomed
+        // picture, and the importer copies a JPEG's bytes through.
+        ("truncated JPEG image", "bad.jpg", |src| {
+            let picture = RgbImage::from_fn(W * 4, H * 4, |x, y| {
+                Rgb([(x * 3 + y) as u8, ((x ^ y) * 5) as u8, (x * y % 251) as u8])
+            });
+            let mut jpeg = Vec::new();
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90)
+                .encode_image(&picture)
+                .unwrap();
+            std::fs::write(src.join("images/bad.jpg"), &jpeg[..jpeg.len() / 2]).unwrap();
+            GrayImage::new(W * 4, H * 4)
                 .save(src.join("labels/bad.png"))
                 .unwrap();
         }),

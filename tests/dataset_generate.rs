@@ -335,3 +335,111 @@ fn settings_files_set_the_generation() {
     );
     assert!(!refused.exists());
 }
+
+/// Without `--map`, generation renders the campus embedded in the binary, from any current
+/// folder: the same files as `--map data/osm/northwestern_nu.osm.pbf` but for the card's
+/// `provenance.map`, which says the embedded copy was used.
+#[test]
+fn the_default_map_is_the_embedded_campus_wherever_the_command_runs() {
+    let elsewhere = tempfile::tempdir().unwrap();
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    assert!(
+        !elsewhere.path().starts_with(repo.canonicalize().unwrap()),
+        "the temporary folder is outside the repository"
+    );
+    let args = ["--count", "2", "--size", "64x48"];
+    let out = pipeline()
+        .current_dir(elsewhere.path())
+        .env("RAYON_NUM_THREADS", "2")
+        .args([
+            "--rerun",
+            "off",
+            "--seed",
+            "11",
+            "dataset",
+            "generate",
+            "--out",
+            "default/ds",
+        ])
+        .args(args)
+        .output()
+        .unwrap();
+    assert_success(&out, "dataset generate without --map in another folder");
+    let default = elsewhere.path().join("default/ds");
+    for id in ["gen_000000", "gen_000001"] {
+        let image = image::open(default.join(format!("images/{id}.png"))).unwrap();
+        assert_eq!((image.width(), image.height()), (64, 48), "{id}");
+        assert!(default.join(format!("labels/{id}.png")).is_file(), "{id}");
+    }
+
+    let explicit = elsewhere.path().join("explicit/ds");
+    assert_success(
+        &generate(&bundled_map(), &explicit, "2", &args),
+        "dataset generate --map data/osm/northwestern_nu.osm.pbf",
+    );
+    let (from_default, from_file) = (files(&default), files(&explicit));
+    assert_eq!(
+        from_default.keys().collect::<Vec<_>>(),
+        from_file.keys().collect::<Vec<_>>()
+    );
+    for (path, bytes) in &from_default {
+        if path != "card.json" {
+            assert!(from_file[path] == *bytes, "{path} differs");
+        }
+    }
+    let mut card = read_json(&default.join("card.json"));
+    assert_eq!(
+        card["provenance"]["map"], "bundled:northwestern_nu.osm.pbf",
+        "{card}"
+    );
+    card["provenance"]["map"] = "northwestern_nu.osm.pbf".into();
+    assert_eq!(card, read_json(&explicit.join("card.json")));
+}
+
+/// `--count 0` is refused with a hint before anything is read or written, with or without
+/// `--shard`; a shard that gets no item of a positive count is still made (the merge of the
+/// shards is the unsharded folder).
+#[test]
+fn count_zero_is_refused_but_an_empty_shard_is_made() {
+    let tmp = tempfile::tempdir().unwrap();
+    let refused = tmp.path().join("refused");
+    for extra in [&[][..], &["--shard", "0/2"][..]] {
+        let mut args = vec!["--count", "0"];
+        args.extend(extra);
+        let out = generate(&bundled_map(), &refused, "1", &args);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.starts_with(
+                "error: --count 0: there is nothing to generate\nhint: --count must be at least 1"
+            ),
+            "{args:?}: {err}"
+        );
+        assert!(!refused.exists(), "{args:?}");
+    }
+
+    // One item in two shards: shard 0 gets none of it.
+    let args = ["--count", "1", "--size", "64x48"];
+    let whole = tmp.path().join("whole").join("ds");
+    assert_success(&generate(&bundled_map(), &whole, "1", &args), "unsharded");
+    let mut shards = Vec::new();
+    for shard in ["0/2", "1/2"] {
+        let dir = tmp.path().join(format!("shard{}", &shard[..1]));
+        let mut shard_args = args.to_vec();
+        shard_args.extend(["--shard", shard]);
+        assert_success(&generate(&bundled_map(), &dir, "1", &shard_args), shard);
+        shards.push(dir);
+    }
+    assert!(entries(&shards[0].join("images")).is_empty());
+    assert_eq!(entries(&shards[1].join("images")), ["gen_000000.png"]);
+    let merged = tmp.path().join("merged").join("ds");
+    let out = pipeline()
+        .args(["--rerun", "off", "dataset", "merge", "--shards"])
+        .args(&shards)
+        .arg("--out")
+        .arg(&merged)
+        .output()
+        .unwrap();
+    assert_success(&out, "merge --shards with an empty shard");
+    assert_same_files(&whole, &merged);
+}

@@ -161,6 +161,12 @@ pub fn import_file(path: &Path, options: &ImportOptions) -> Result<Map, MapError
     import_osm(&osm, options).map_err(|e| e.with_path(path))
 }
 
+/// Imports OSM PBF data held in memory (such as a map embedded in a program): the same map
+/// as [`import_file`] makes from a file holding these bytes. Errors name no file.
+pub fn import_pbf_bytes(bytes: &[u8], options: &ImportOptions) -> Result<Map, MapError> {
+    import_osm(&crate::osm::read_pbf_bytes(bytes)?, options)
+}
+
 /// Imports parsed OSM data: Lanelet2 maps (with `type=lanelet` relations) through
 /// [`crate::lanelet2`], everything else through the OSM road pipeline.
 pub fn import_osm(osm: &OsmData, options: &ImportOptions) -> Result<Map, MapError> {

@@ -29,7 +29,7 @@ pub mod spatial;
 pub mod summary;
 pub mod tags;
 
-pub use build::{ImportOptions, import_file, import_osm};
+pub use build::{ImportOptions, import_file, import_osm, import_pbf_bytes};
 pub use error::MapError;
 pub use geometry::Point;
 pub use model::*;

@@ -14,6 +14,15 @@ use crate::error::{CliError, FileRole, map_error};
 pub const MAP_JSON: &str = "map.json";
 pub const MAP_BIN: &str = "map.bin";
 
+/// The file name of the bundled campus (Northwestern University and downtown Evanston), as
+/// in the repository's `data/osm/`.
+pub const BUNDLED_CAMPUS_FILE: &str = "northwestern_nu.osm.pbf";
+/// How outputs record the bundled campus as their map: the embedded copy, not a path.
+pub const BUNDLED_CAMPUS_NAME: &str = "bundled:northwestern_nu.osm.pbf";
+/// The bundled campus's PBF bytes, embedded in the binary so that commands defaulting to it
+/// work from any folder (© OpenStreetMap contributors, ODbL 1.0; see data/osm/README.md).
+const BUNDLED_CAMPUS: &[u8] = include_bytes!("../../data/osm/northwestern_nu.osm.pbf");
+
 /// The file endings read as OpenStreetMap input (XML, gzip'd XML, PBF; Lanelet2 is XML).
 const OSM_ENDINGS: [&str; 5] = [".osm", ".osm.gz", ".osm.xml", ".osm.pbf", ".pbf"];
 
@@ -66,6 +75,18 @@ pub fn load_or_import_map(path: &Path) -> Result<Map> {
     } else {
         Ok(load_map(path)?.0)
     }
+}
+
+/// The bundled campus imported from the copy embedded in the binary, with the default options:
+/// the map `load_or_import_map` makes of `data/osm/northwestern_nu.osm.pbf`.
+pub fn bundled_campus() -> Result<Map> {
+    maps::import_pbf_bytes(BUNDLED_CAMPUS, &maps::ImportOptions::default()).map_err(|e| {
+        CliError::new(
+            format!("{BUNDLED_CAMPUS_NAME}: {e}"),
+            "this is a bug in this build of pipeline: please report it; meanwhile give a map with --map",
+        )
+        .into()
+    })
 }
 
 #[cfg(test)]

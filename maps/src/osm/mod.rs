@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::MapError;
 use crate::projection::LatLon;
 
-pub use pbf::read_pbf;
+pub use pbf::{read_pbf, read_pbf_bytes};
 pub use xml::{parse_xml, read_xml};
 
 /// Tags of an element, sorted by key.

@@ -1,5 +1,7 @@
 //! OSM PBF with the osmpbf crate.
 
+use std::fs::File;
+use std::io::{BufReader, Read};
 use std::path::Path;
 
 use osmpbf::{Blob, BlobDecode, BlobReader, Element, RelMemberType};
@@ -20,12 +22,26 @@ fn tags<'a>(iter: impl Iterator<Item = (&'a str, &'a str)>) -> Tags {
 /// The file's blobs are decoded side by side on the thread pool, then merged in file order,
 /// so the data and the first error reported are those of reading the blobs one by one.
 pub fn read_pbf(path: &Path) -> Result<OsmData, MapError> {
+    let file = File::open(path).map_err(|e| MapError::io(path, e))?;
+    read_blobs(BlobReader::new(BufReader::new(file)), Some(path))
+}
+
+/// Reads PBF data held in memory (a map embedded in a program), exactly as [`read_pbf`]
+/// reads the same bytes from a file. Corrupt or truncated blobs are errors naming no file.
+pub fn read_pbf_bytes(bytes: &[u8]) -> Result<OsmData, MapError> {
+    read_blobs(BlobReader::new(bytes), None)
+}
+
+/// The elements of every blob `reader` gives, decoded in parallel and merged in order;
+/// errors name `path` when there is one.
+fn read_blobs<R: Read + Send>(
+    reader: BlobReader<R>,
+    path: Option<&Path>,
+) -> Result<OsmData, MapError> {
     let corrupt = |e: osmpbf::Error| MapError::Parse {
-        path: Some(path.to_path_buf()),
+        path: path.map(Path::to_path_buf),
         message: format!("corrupt or truncated PBF: {e}"),
     };
-    let reader = BlobReader::from_path(path)
-        .map_err(|e| MapError::io(path, std::io::Error::other(e.to_string())))?;
     // The reader stops after its first error; that error stays in place among the blobs.
     let blobs: Vec<osmpbf::Result<Blob>> = reader.collect();
     let decoded: Vec<osmpbf::Result<OsmData>> = blobs

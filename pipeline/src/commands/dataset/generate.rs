@@ -5,7 +5,7 @@
 //! atomically: `images/`, `labels/`, optional `topdown/` and `previews/`, then
 //! `manifest.jsonl` and `card.json`.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -23,12 +23,10 @@ use serde_json::json;
 pub use super::generate_args::{GenerateArgs, resolve_config};
 use crate::commands::Context;
 use crate::error::CliError;
-use crate::inputs::load_or_import_map;
+use crate::inputs::{BUNDLED_CAMPUS_FILE, BUNDLED_CAMPUS_NAME, bundled_campus, load_or_import_map};
 use crate::output::{AtomicDir, Markers};
 use crate::recording;
 
-/// The map used when `--map` is not given (bundled with the repository).
-pub const DEFAULT_MAP: &str = "data/osm/northwestern_nu.osm.pbf";
 /// Folder of the top-down label views.
 pub const TOPDOWN_DIR: &str = "topdown";
 /// A folder holding either file is an earlier dataset that may be replaced.
@@ -117,15 +115,32 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
     let out = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out, DATASET_MARKERS)?;
     let mut progress = ctx.ui.progress("dataset generate");
-    progress.step(&format!("reading {}", args.map.display()));
-    let map = load_or_import_map(&args.map)?;
+    // The map, and what the card records of it: the file's name, or the embedded campus.
+    let (map, map_shown, map_name) = match &args.map {
+        Some(path) => {
+            progress.step(&format!("reading {}", path.display()));
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+            (load_or_import_map(path)?, path.clone(), name)
+        }
+        None => {
+            progress.step(&format!(
+                "reading the bundled campus ({BUNDLED_CAMPUS_FILE}, embedded)"
+            ));
+            let shown = PathBuf::from(BUNDLED_CAMPUS_NAME);
+            (
+                bundled_campus()?,
+                shown,
+                Some(BUNDLED_CAMPUS_NAME.to_owned()),
+            )
+        }
+    };
 
     progress.step("building the scene");
     let generator = Generator::new(&map, config.clone(), ctx.cli.seed).map_err(|e| {
         CliError::file(
-            &args.map,
+            &map_shown,
             e.to_string(),
-            "give a map with car roads (e.g. the bundled data/osm/northwestern_nu.osm.pbf)",
+            "give a map with car roads, or leave out --map to render the bundled campus",
         )
     })?;
     let scene = generator.scene();
@@ -193,7 +208,7 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
         json!({
             "tool": "pipeline dataset generate",
             "pipeline_version": env!("CARGO_PKG_VERSION"),
-            "map": args.map.file_name().map(|n| n.to_string_lossy().into_owned()),
+            "map": map_name,
             "map_lanes": map.lanes.len(),
             "stage": GENERATE_STAGE,
             "licence": "map data © OpenStreetMap contributors (ODbL 1.0) when made from OSM",

@@ -6,15 +6,17 @@ use anyhow::Result;
 use datasets::generate::GenerateConfig;
 use datasets::render::TopdownConfig;
 
-use super::generate::DEFAULT_MAP;
 use crate::error::CliError;
 
 #[derive(Debug, clap::Args)]
 pub struct GenerateArgs {
     /// A map (map.json, map.bin or a map folder from `pipeline map import`), or an OSM file
-    /// (.osm, .osm.gz, .osm.pbf) imported on the fly with the default car profile.
-    #[arg(long, value_name = "MAP|OSM", default_value = DEFAULT_MAP)]
-    pub map: PathBuf,
+    /// (.osm, .osm.gz, .osm.pbf) imported on the fly with the default car profile
+    /// [default: the bundled campus, Northwestern University and Evanston
+    /// (northwestern_nu.osm.pbf, embedded in the binary; © OpenStreetMap contributors, ODbL
+    /// 1.0), recorded in the card as `bundled:northwestern_nu.osm.pbf`].
+    #[arg(long, value_name = "MAP|OSM")]
+    pub map: Option<PathBuf>,
 
     /// Output folder (written atomically; replaced if it holds an earlier dataset).
     #[arg(long, value_name = "DIR")]
@@ -93,6 +95,13 @@ fn parse_size(s: &str) -> std::result::Result<(u32, u32), String> {
 
 /// The generation config from the defaults and the command line.
 pub fn resolve_config(args: &GenerateArgs) -> Result<GenerateConfig> {
+    if args.count == 0 {
+        return Err(CliError::new(
+            "--count 0: there is nothing to generate",
+            "--count must be at least 1 (the number of images; with --shard i/n, of all the shards together)",
+        )
+        .into());
+    }
     let mut config = match &args.settings {
         Some(path) => read_settings(path)?,
         None => GenerateConfig::default(),

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, ValueEnum};
-use models::segmenter::data::{SourceSpec, Split};
+use models::segmenter::data::{Source, SourceSpec, Split};
 use models::segmenter::eval::{Evaluation, class_names, evaluate};
 use models::segmenter::metrics::{
     BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, IouIntervals, bootstrap_iou,
@@ -63,7 +63,8 @@ pub enum SplitArg {
     Train,
     /// The `val` split.
     Val,
-    /// The `test` split (`dataset split --test`, `dataset import camvid`).
+    /// The `test` split (`dataset split --test` or `--test-group`; `dataset import camvid` of a
+    /// copy with a test/ folder).
     Test,
     /// Every item.
     All,
@@ -112,6 +113,44 @@ pub struct DatasetFigures {
     pub ci95: IouIntervals,
 }
 
+/// The problem and the hint for a dataset with no item in the `split` asked for: what
+/// splits it has, and how to choose one or make the one asked for.
+fn empty_split_message(source: &Source, split: SplitArg) -> (String, String) {
+    let name = format!("{split:?}").to_lowercase();
+    let items = &source.dataset.items;
+    if items.is_empty() {
+        return (
+            "has no items".into(),
+            "give a dataset with items (`pipeline dataset generate | import`)".into(),
+        );
+    }
+    let mut counts: BTreeMap<&str, usize> = BTreeMap::new();
+    for item in items {
+        *counts
+            .entry(item.split.as_deref().unwrap_or("none"))
+            .or_default() += 1;
+    }
+    let held: Vec<String> = counts.iter().map(|(s, n)| format!("{s} {n}")).collect();
+    let choices: Vec<&str> = counts
+        .keys()
+        .copied()
+        .filter(|s| *s != "none")
+        .chain(["all"])
+        .collect();
+    (
+        format!(
+            "has no items in the {name} split (its items: {})",
+            held.join(", ")
+        ),
+        format!(
+            "choose a split it has with --split {}, or make a {name} split with `pipeline dataset split {} --{name} 0.2` \
+             (or --group-by prefix --{name}-group GROUP for whole sequences; docs/datasets.md)",
+            choices.join("|"),
+            source.root().display()
+        ),
+    )
+}
+
 pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let out_path = ctx.output_path(&args.out);
     AtomicDir::check_destination(&out_path, EVAL_MARKERS)?;
@@ -126,12 +165,8 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     };
     let sources = open_sources(&args.data, split)?;
     if let Some(empty) = sources.iter().find(|s| s.items.is_empty()) {
-        return Err(crate::error::CliError::file(
-            empty.root(),
-            format!("has no items in the {:?} split", args.split).to_lowercase(),
-            "use --split all, or split it with `pipeline dataset split`",
-        )
-        .into());
+        let (problem, hint) = empty_split_message(empty, args.split);
+        return Err(crate::error::CliError::file(empty.root(), problem, hint).into());
     }
     let mut progress = ctx.ui.progress("segmenter eval");
     // The images predicted: each dataset's, up to --limit.
