@@ -460,10 +460,12 @@ fn offline_agents_learn_from_drivers_and_run_where_online_agents_do() {
     );
 }
 
-/// A track file converted with another roundabout's map, one whose extent covers the tracks
-/// (EP's for FT's): refused with the share of positions near its lanes, nothing written.
+/// A recording given with another roundabout's map, one whose extent covers the tracks (EP's
+/// for FT's), is refused by every command that reads a recording with a map, through the
+/// one shared check: the same message with the same share of positions near the map's
+/// lanes, the recording and the map named, a hint, one error line, nothing written.
 #[test]
-fn tracks_are_refused_on_another_scenarios_map() {
+fn every_command_refuses_a_recording_on_another_scenarios_map() {
     let Some(data) = shared_data() else {
         println!(
             "skipped: {}: ../shared/data is absent",
@@ -471,33 +473,119 @@ fn tracks_are_refused_on_another_scenarios_map() {
         );
         return;
     };
+    let tmp = tempfile::tempdir().unwrap();
     let base = data.join("trajectories/interaction");
     let tracks = base.join("recorded_trackfiles/DR_USA_Roundabout_FT/vehicle_tracks_000.csv.gz");
-    let tmp = tempfile::tempdir().unwrap();
-    let log = tmp.path().join("ft_000_on_ep.mcap");
+    let ft = base.join("maps/DR_USA_Roundabout_FT.osm");
+    let ep = base.join("maps/DR_USA_Roundabout_EP.osm");
+    // The recording, converted on its own map with an ego (for `logs ego`).
+    let log = tmp.path().join("ft_000.mcap");
     let out = pipeline()
         .args(["--rerun", "off", "logs", "convert"])
         .arg(&tracks)
         .arg("--map")
-        .arg(base.join("maps/DR_USA_Roundabout_EP.osm"))
-        .arg("--out")
+        .arg(&ft)
+        .args(["--ego", "60", "--out"])
         .arg(&log)
         .output()
         .unwrap();
-    assert_refused(
-        &out,
-        "vehicle_tracks_000.csv.gz: only 39.4 % of the track positions lie within 5 m of a lane of the map",
-        &log,
-    );
-    let err = stderr(&out);
-    let errors: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
-    assert_eq!(errors.len(), 1, "{err}");
-    assert!(errors[0].contains("DR_USA_Roundabout_EP.osm"), "{err}");
-    assert!(
-        err.lines()
-            .any(|l| l.starts_with("hint: give the map of the same scenario")),
-        "{err}"
-    );
+    assert_success(&out, "logs convert on its own map");
+    let out_path = |name: &str| tmp.path().join(name);
+    let log_arg = log.to_string_lossy().into_owned();
+    let tracks_arg = tracks.to_string_lossy().into_owned();
+    // (command, its input, its arguments before --map, what it would write)
+    let cases: Vec<(&str, &Path, Vec<&str>, PathBuf)> = vec![
+        (
+            "logs convert",
+            &tracks,
+            vec!["logs", "convert", &tracks_arg],
+            out_path("c.mcap"),
+        ),
+        (
+            "logs project",
+            &log,
+            vec!["logs", "project", &log_arg],
+            out_path("frames"),
+        ),
+        (
+            "logs ego",
+            &log,
+            vec!["logs", "ego", &log_arg],
+            out_path("ego.json"),
+        ),
+        (
+            "replay eval",
+            &log,
+            vec!["replay", "eval", "--log", &log_arg],
+            out_path("replay"),
+        ),
+        (
+            "replay gaps",
+            &log,
+            vec!["replay", "gaps", "--log", &log_arg],
+            out_path("gaps"),
+        ),
+        (
+            "sim calibrate",
+            &log,
+            vec!["sim", "calibrate", "--no-refine", "--log", &log_arg],
+            out_path("calib.toml"),
+        ),
+        (
+            "sim realism",
+            &log,
+            vec!["sim", "realism", "--minutes", "1", "--log", &log_arg],
+            out_path("realism"),
+        ),
+        (
+            "agent train --offline",
+            &log,
+            vec![
+                "agent",
+                "train",
+                "--offline",
+                "--steps",
+                "10",
+                "--log",
+                &log_arg,
+            ],
+            out_path("offline"),
+        ),
+    ];
+    for (what, input, args, output) in cases {
+        let out = pipeline()
+            .args(["--rerun", "off"])
+            .args(&args)
+            .arg("--map")
+            .arg(&ep)
+            .arg("--out")
+            .arg(&output)
+            .output()
+            .unwrap();
+        let name = input.file_name().unwrap().to_string_lossy().into_owned();
+        let expected = if what == "logs ego" {
+            // The ego's own positions.
+            format!(
+                "{name}: its road users do not drive on the map {}: ",
+                ep.display()
+            )
+        } else {
+            // Every other command counts the same vehicle positions of the same recording.
+            format!(
+                "{name}: its road users do not drive on the map {}: 39.4 % of their",
+                ep.display()
+            )
+        };
+        assert_refused(&out, &expected, &output);
+        let err = stderr(&out);
+        let errors: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(errors.len(), 1, "{what}: {err}");
+        assert!(
+            err.lines()
+                .any(|l| l.starts_with("hint: give the map the recording was made on")),
+            "{what}: {err}"
+        );
+    }
 }
 
 /// `logs info --json` names each topic's decoder as the text form does: its name, or

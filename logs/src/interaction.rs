@@ -9,20 +9,10 @@ use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::Path;
 
-use maps::Map;
-use rstar::RTree;
-use rstar::primitives::Line;
+use maps::geometry::Point;
 use serde::Serialize;
 
 use super::error::{LogError, LogResult};
-
-/// Track positions this close to a lane's centre line count as on the map's lanes, m.
-pub const NEAR_LANE_M: f64 = 5.0;
-/// Below this share of track positions near a lane ([`TrackFile::share_near_lanes`]), the
-/// map is taken to be another scenario's. Measured on the INTERACTION roundabouts: at least
-/// 94.7 % of every FT and EP recording's positions lie within 5 m of their own map's lanes,
-/// at most 59.2 % within 5 m of another roundabout's (FT, EP, SR, LN, OF).
-pub const MIN_SHARE_NEAR_LANES: f64 = 0.8;
 
 /// The header of a per-recording track file.
 pub const TRACK_HEADER: &str =
@@ -66,31 +56,9 @@ impl TrackFile {
         frames
     }
 
-    /// The share of rows whose position lies within `within_m` metres of the centre line of
-    /// one of `map`'s lanes: a check that the tracks belong to the map (the map of another
-    /// scenario can span the tracks' extent, its lanes lying elsewhere).
-    pub fn share_near_lanes(&self, map: &Map, within_m: f64) -> f64 {
-        let segments: Vec<Line<[f64; 2]>> = map
-            .lanes
-            .values()
-            .flat_map(|lane| {
-                lane.centre
-                    .windows(2)
-                    .map(|w| Line::new([w[0].x, w[0].y], [w[1].x, w[1].y]))
-            })
-            .collect();
-        let tree = RTree::bulk_load(segments);
-        let reach = within_m * within_m;
-        let near = self
-            .rows
-            .iter()
-            .filter(|r| {
-                tree.locate_within_distance([r.x, r.y], reach)
-                    .next()
-                    .is_some()
-            })
-            .count();
-        near as f64 / self.rows.len().max(1) as f64
+    /// Every row's position, in file order (what [`crate::on_map::check_on_map`] checks).
+    pub fn positions(&self) -> impl Iterator<Item = Point> + '_ {
+        self.rows.iter().map(|r| Point::new(r.x, r.y))
     }
 
     /// The distinct track ids, ascending.

@@ -40,6 +40,7 @@ pub mod msgs;
 pub mod noise;
 #[cfg(feature = "policies")]
 pub mod offline;
+pub mod on_map;
 pub mod project;
 #[cfg(feature = "policies")]
 pub mod replay;

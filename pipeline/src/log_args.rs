@@ -129,11 +129,42 @@ pub fn objects_topic(
     Ok(topic.to_owned())
 }
 
-/// Reads a log's object frames (the objects topic of `[logs.roles]`, or the one detected)
-/// and finds its approaches to `map`'s yield lines.
+/// The one check of every command that reads a recording with a map: the recording's
+/// vehicles (`positions`) must drive on the map's lanes ([`logs::on_map`]); otherwise an
+/// error naming the recording and the map, before anything is measured or written.
+pub fn check_on_map(
+    log: &Path,
+    map: &maps::Map,
+    map_path: &Path,
+    positions: impl IntoIterator<Item = maps::geometry::Point>,
+) -> Result<()> {
+    use logs::on_map::{MIN_SHARE_NEAR_LANES, NEAR_LANE_M};
+    let Err(logs::on_map::NotOnMap(found)) = logs::on_map::check_on_map(map, positions) else {
+        return Ok(());
+    };
+    Err(CliError::file(
+        log,
+        format!(
+            "its road users do not drive on the map {}: {:.1} % of their {} positions lie within {NEAR_LANE_M} m \
+             of a lane (at least {:.0} % must)",
+            map_path.display(),
+            found.share() * 100.0,
+            found.positions,
+            MIN_SHARE_NEAR_LANES * 100.0
+        ),
+        "give the map the recording was made on (for INTERACTION: maps/<scenario>.osm for \
+         recorded_trackfiles/<scenario>/)",
+    )
+    .into())
+}
+
+/// Reads a log's object frames (the objects topic of `[logs.roles]`, or the one detected),
+/// checks that they were recorded on `map` (read from `map_path`) and finds their approaches
+/// to its yield lines.
 pub fn read_replay_log(
     ctx: &Context<'_>,
     map: &maps::Map,
+    map_path: &Path,
     path: &Path,
     labels: &LabelConfig,
 ) -> Result<ReplayLog> {
@@ -145,6 +176,12 @@ pub fn read_replay_log(
     let decoded = read_decoded(&log, &ReadOptions::default()).map_err(log_error)?;
     let objects = objects_topic(ctx, path, &decoded, &RoleArgs::default())?;
     let frames = log_frames(&decoded, Some(&objects));
+    check_on_map(
+        path,
+        map,
+        map_path,
+        logs::on_map::vehicle_positions(&frames),
+    )?;
     Ok(ReplayLog::new(name, frames, map, labels))
 }
 

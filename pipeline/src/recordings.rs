@@ -8,12 +8,12 @@ use clap::Args;
 use logs::decode::read_decoded;
 use logs::project::{LogFrame, log_frames};
 use logs::source::{Log, ReadOptions};
-use logs::traffic::measure::{Measurements, RingGeometry, measure, share_on_lanes};
+use logs::traffic::measure::{Measurements, RingGeometry, measure};
 use maps::{Map, RoundaboutId};
 
 use crate::commands::Context;
 use crate::error::CliError;
-use crate::log_args::{RoleArgs, log_error, objects_topic};
+use crate::log_args::{RoleArgs, check_on_map, log_error, objects_topic};
 
 /// The recordings of a roundabout and their map, as the commands that measure them take them.
 #[derive(Debug, Args)]
@@ -49,9 +49,6 @@ pub fn read_frames(ctx: &Context<'_>, path: &Path) -> Result<Vec<LogFrame>> {
     }
     Ok(frames)
 }
-
-/// Share of a recording's positions that must lie on the map's lanes.
-const MIN_ON_LANES: f64 = 0.5;
 
 /// The recordings measured at their roundabout: the map, the ring's geometry and one
 /// measurement per recording, each checked to lie on the map.
@@ -144,19 +141,12 @@ pub fn measure_recordings(
     let mut kept = Vec::new();
     for path in logs {
         let frames = read_frames(ctx, path)?;
-        let share = share_on_lanes(&map, &frames);
-        if share < MIN_ON_LANES {
-            return Err(CliError::file(
-                path,
-                format!(
-                    "its road users do not drive on the map {}: {:.0} % of their positions lie within 4 m of a lane",
-                    map_path.display(),
-                    share * 100.0
-                ),
-                "give the map the recording was made on (`logs convert --map`)",
-            )
-            .into());
-        }
+        check_on_map(
+            path,
+            &map,
+            map_path,
+            logs::on_map::vehicle_positions(&frames),
+        )?;
         all.push(geometries.iter().map(|g| measure(g, &frames)).collect());
         kept.push(frames);
         progress.inc(1);

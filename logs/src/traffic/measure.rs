@@ -275,26 +275,6 @@ impl Measurements {
     }
 }
 
-/// The share of the road users' positions in `frames` (every tenth frame) that lie within
-/// 4 m of a car lane's centre line of `map`: a check that the frames belong to the map (0
-/// when they hold no car).
-pub fn share_on_lanes(map: &Map, frames: &[LogFrame]) -> f64 {
-    let index = maps::spatial::LaneIndex::car_lanes(map);
-    let (mut all, mut near) = (0usize, 0usize);
-    for f in frames.iter().step_by(10) {
-        for a in f.actors.iter().filter(|a| a.kind == sim::ActorKind::Car) {
-            all += 1;
-            if index
-                .nearest(map, a.position)
-                .is_some_and(|n| n.distance_m <= 4.0)
-            {
-                near += 1;
-            }
-        }
-    }
-    near as f64 / all.max(1) as f64
-}
-
 /// Vehicles per hour crossing each entry's line, pooled over `measured`.
 pub fn entry_flows_vph(measured: &[Measurements]) -> Vec<f64> {
     let seconds: f64 = measured.iter().map(|m| m.duration_s).sum();

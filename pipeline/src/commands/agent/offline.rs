@@ -77,7 +77,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let mut episodes = LoggedEpisodes::new(&views, task_config.reward, args.target_speed);
     for path in &args.logs {
         progress.step(&format!("reading {}", path.display()));
-        let log = read_replay_log(ctx, &map, path, &labels)?;
+        let log = read_replay_log(ctx, &map, map_path, path, &labels)?;
         episodes
             .add_log(&map, &views, &log)
             .map_err(|e| models_error(e, path))?;

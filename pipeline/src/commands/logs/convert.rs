@@ -4,13 +4,13 @@ use std::io::Cursor;
 
 use anyhow::Result;
 use logs::convert::{ChunkCompression, ConvertConfig, interaction_to_mcap};
-use logs::interaction::{MIN_SHARE_NEAR_LANES, NEAR_LANE_M, read_track_file};
+use logs::interaction::read_track_file;
 use maps::{ImportOptions, Projection};
 
 use super::{CompressionArg, ConvertArgs};
 use crate::commands::Context;
 use crate::error::{CliError, FileRole, map_error};
-use crate::log_args::log_error;
+use crate::log_args::{check_on_map, log_error};
 use crate::output::write_file_atomic;
 
 pub fn run(ctx: &Context<'_>, args: &ConvertArgs) -> Result<()> {
@@ -39,22 +39,7 @@ pub fn run(ctx: &Context<'_>, args: &ConvertArgs) -> Result<()> {
         )
         .into());
     }
-    let share = tracks.share_near_lanes(&map, NEAR_LANE_M);
-    if share < MIN_SHARE_NEAR_LANES {
-        return Err(CliError::file(
-            &args.tracks,
-            format!(
-                "only {:.1} % of the track positions lie within {NEAR_LANE_M} m of a lane of the map {} \
-                 (at least {:.0} % must: it looks like another scenario's map)",
-                share * 100.0,
-                args.map.display(),
-                MIN_SHARE_NEAR_LANES * 100.0
-            ),
-            "give the map of the same scenario as the track file: \
-             maps/<scenario>.osm for recorded_trackfiles/<scenario>/",
-        )
-        .into());
-    }
+    check_on_map(&args.tracks, &map, &args.map, tracks.positions())?;
 
     progress.step("writing MCAP");
     let name = |p: &std::path::Path| {

@@ -15,7 +15,7 @@ use serde_json::json;
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
-use crate::log_args::{RoleArgs, log_error, topic_roles};
+use crate::log_args::{RoleArgs, check_on_map, log_error, topic_roles};
 use crate::output::write_file_atomic;
 
 #[derive(Debug, Args)]
@@ -104,6 +104,12 @@ pub fn run(ctx: &Context<'_>, args: &EgoArgs) -> Result<()> {
         )
         .into());
     }
+    check_on_map(
+        &args.log,
+        &map,
+        &args.map,
+        recorded.iter().map(|s| s.position),
+    )?;
     let (samples, report) = resample(&recorded, args.rate, args.max_gap);
     progress.step(&format!("matching {} samples to lanes", samples.len()));
     let matches = match_lanes(&map, &samples, &MatchConfig::default());

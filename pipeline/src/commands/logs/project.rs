@@ -29,7 +29,7 @@ use sim::render::{BevConfig, BevRenderer};
 use crate::commands::Context;
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
-use crate::log_args::{RoleArgs, log_error, objects_topic, write_error};
+use crate::log_args::{RoleArgs, check_on_map, log_error, objects_topic, write_error};
 use crate::output::AtomicDir;
 use crate::recording::{log_actors, log_layers, log_map};
 
@@ -106,6 +106,12 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         )
         .into());
     }
+    check_on_map(
+        &args.log,
+        &map,
+        &args.map,
+        logs::on_map::vehicle_positions(&frames),
+    )?;
     let lengths = track_lengths(&frames);
     let ego = match args.ego {
         Some(id) if lengths.contains_key(&id) => id,

@@ -42,7 +42,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         let mut examples = BcExamples::default();
         for path in &args.train_logs {
             progress.step(&format!("behaviour cloning: reading {}", path.display()));
-            let log = read_replay_log(ctx, &map, path, &labels)?;
+            let log = read_replay_log(ctx, &map, &args.map, path, &labels)?;
             examples.add(&map, &views, &log, args.bc_stride);
         }
         progress.step(&format!(
@@ -62,7 +62,7 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
     let mut logs = Vec::with_capacity(args.logs.len());
     for path in &args.logs {
         progress.step(&format!("reading {}", path.display()));
-        let log = read_replay_log(ctx, &map, path, &labels)?;
+        let log = read_replay_log(ctx, &map, &args.map, path, &labels)?;
         progress.step(&format!(
             "{}: {} approaches",
             log.name,
