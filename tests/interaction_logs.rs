@@ -3,7 +3,8 @@
 //!   footprint at its centre, on the drivable area of the real map, and the frame
 //!   dataset's files agree with each other;
 //! - `replay eval`: approaches found and labelled, the
-//!   scores consistent with the labels.
+//!   scores consistent with the labels;
+//! - `replay eval` and `replay gaps` count the same approaches.
 //!
 //! Skips when ../shared/data is absent.
 
@@ -222,6 +223,96 @@ fn replay_labels_real_approaches_and_scores_the_baselines() {
         stderr(&out).contains("has no roundabout"),
         "{}",
         stderr(&out)
+    );
+}
+
+/// `replay eval` and `replay gaps` on FT 000 count the same approaches (docs/logs.md): the
+/// same number under the same name and definition in replay.json and gaps.json, and
+/// gaps.json's other counts relate to it exactly as documented: the approaches offered a gap
+/// (the distinct drivers of gaps.csv) and those offered none whose outcome the recording
+/// shows add up to the approaches; the vehicles that crossed a yield line with too little of
+/// their track before it to have an approach are counted apart, in neither.
+#[test]
+fn replay_eval_and_replay_gaps_count_the_same_approaches() {
+    let tmp = tempfile::tempdir().unwrap();
+    let Some((map, log)) = ft_recording(tmp.path(), 0) else {
+        return;
+    };
+    let run = |command: &str| {
+        let dir = tmp.path().join(command);
+        let out = pipeline()
+            .args(["--rerun", "off", "replay", command, "--log"])
+            .arg(&log)
+            .arg("--map")
+            .arg(&map)
+            .arg("--out")
+            .arg(&dir)
+            .output()
+            .unwrap();
+        assert_success(&out, &format!("replay {command}"));
+        dir
+    };
+    let (eval_dir, gaps_dir) = (run("eval"), run("gaps"));
+    let replay = read_json(&eval_dir.join("replay.json"));
+    let gaps = read_json(&gaps_dir.join("gaps.json"));
+    let count = |report: &serde_json::Value, key: &str| {
+        report[key]
+            .as_u64()
+            .unwrap_or_else(|| panic!("no {key} in {report}"))
+    };
+
+    // The same thing, the same number and the same words.
+    let approaches = count(&replay, "approaches");
+    assert_eq!(count(&gaps, "approaches"), approaches, "{gaps}");
+    let definition = replay["approach_definition"].as_str().unwrap();
+    assert!(definition.contains("min_approach_s"), "{definition}");
+    assert_eq!(gaps["approach_definition"].as_str(), Some(definition));
+
+    // The gaps' drivers are the approaches offered a gap; the rest were offered none whose
+    // outcome the recording shows.
+    let offered_a_gap = count(&gaps, "approaches_offered_a_gap");
+    let without = count(&gaps, "approaches_without_a_known_gap");
+    assert_eq!(offered_a_gap + without, approaches, "{gaps}");
+    let csv = std::fs::read_to_string(gaps_dir.join("gaps.csv")).unwrap();
+    let drivers: std::collections::BTreeSet<(String, String)> = csv
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let mut f = l.split(',');
+            (f.next().unwrap().to_owned(), f.next().unwrap().to_owned())
+        })
+        .collect();
+    assert_eq!(drivers.len() as u64, offered_a_gap);
+    assert_eq!(csv.lines().count() as u64 - 1, count(&gaps, "offered"));
+
+    // FT 000: 139 vehicles crossed a yield line towards the ring; 37 of them were first seen
+    // under a second before it (entries 1 and 3, where the recorded area ends at the line)
+    // and have no approach; of the 102 approaches, 3 cross in the recording's last seconds,
+    // before the outcome of their gap is known.
+    assert_eq!(
+        (
+            approaches,
+            offered_a_gap,
+            without,
+            count(&gaps, "crossings_without_an_approach")
+        ),
+        (102, 99, 3, 37),
+        "{gaps}"
+    );
+
+    // The summaries say so.
+    let replay_md = std::fs::read_to_string(eval_dir.join("replay.md")).unwrap();
+    assert!(
+        replay_md.contains("102 approaches to a yield line"),
+        "{replay_md}"
+    );
+    let gaps_md = std::fs::read_to_string(gaps_dir.join("gaps.md")).unwrap();
+    assert!(
+        gaps_md.contains("to the drivers of 99 approaches")
+            && gaps_md.contains("Approaches: 102 to the yield lines")
+            && gaps_md.contains("3 of them offered no gap")
+            && gaps_md.contains("37 more vehicles crossed a yield line"),
+        "{gaps_md}"
     );
 }
 

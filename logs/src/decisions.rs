@@ -2,7 +2,9 @@
 //! line, every frame labelled go or wait from what the driver then did.
 //!
 //! An approach is the part of a track before it crosses a roundabout's yield line towards
-//! the ring, up to `approach_m` of driving before the line. Its frames are labelled:
+//! the ring, up to `approach_m` of driving before the line, when it spans at least
+//! `min_approach_s` ([`APPROACH_DEFINITION`]); `replay eval` labels these and `replay gaps`
+//! takes the same approaches' drivers. Its frames are labelled:
 //! - when the driver stopped (speed under `stop_mps`) before the line: wait from the onset
 //!   of the braking that ended in the first stop up to the last stopped frame, ambiguous for
 //!   `decision_s` after it (the moment the driver decided to go is not seen exactly), go
@@ -48,7 +50,8 @@ pub struct LabelConfig {
     pub crawl_mps: f64,
     /// Frames this long after the last stop are ambiguous, s.
     pub decision_s: f64,
-    /// Approaches shorter than this are dropped (a track that starts at the line), s.
+    /// Approaches shorter than this are dropped (a track that starts at the line has no
+    /// approach, in `replay eval` and `replay gaps` alike), s.
     pub min_approach_s: f64,
     /// A vehicle whose centre is this far ahead of the driver's centre or less (and
     /// within half a lane sideways) makes a wait frame queued, m.
@@ -85,6 +88,13 @@ impl Default for LabelConfig {
         }
     }
 }
+
+/// What an approach is, in the words of the reports that count them (`replay.json` and
+/// `gaps.json` carry it beside their counts).
+pub const APPROACH_DEFINITION: &str = "a track's first crossing of a yield line of a \
+roundabout towards its ring, with at least min_approach_s of the track within approach_m of \
+driving before the line (labels / [logs.decisions]); a track first seen nearer the line has \
+no approach";
 
 /// One vehicle's approach to a yield line.
 #[derive(Debug, Clone, PartialEq, Serialize)]

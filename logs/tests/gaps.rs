@@ -1,12 +1,14 @@
 //! Gap extraction on a hand-built case with known gaps: on the bundled montlake map, one
 //! driver waits at an entry while three vehicles circulate past its merge point at known
 //! times; the lag, the rejected gap, the accepted gap and what the driver could see when
-//! each was offered are known exactly.
+//! each was offered are known exactly; a vehicle first seen at another entry's line is no
+//! approach and offered nothing.
 
 #![allow(clippy::unwrap_used)]
 
 use std::path::Path;
 
+use logs::decisions::{LabelConfig, approaches};
 use logs::gaps::offered_gaps;
 use logs::project::LogFrame;
 use logs::traffic::measure::RingGeometry;
@@ -99,7 +101,29 @@ fn the_gaps_of_a_hand_built_approach_are_the_ones_built() {
         });
     }
 
-    let found = offered_gaps(&map, &g, "hand-built", &frames);
+    // A vehicle first seen 1.1 m before another entry's line and across it 0.3 s later (then
+    // gone): it crossed a yield line without an approach (under `min_approach_s` of its
+    // track before the line), so it is counted and left out, as `replay eval` leaves it out.
+    assert!(g.entries.len() > 1);
+    let line1 = &g.entries[1].line;
+    let mid1 = line1[0].add(line1[line1.len() - 1]).scale(0.5);
+    let out1 = mid1.sub(g.centre).scale(1.0 / mid1.distance(g.centre));
+    for (j, f) in frames.iter_mut().skip(250).take(6).enumerate() {
+        let outside = 1.1 - 0.4 * j as f64;
+        f.actors.push(car(
+            2,
+            mid1.add(out1.scale(outside)),
+            out1.y.atan2(out1.x) + std::f64::consts::PI,
+        ));
+    }
+    let labels = LabelConfig::default();
+    let found = offered_gaps(&map, &g, "hand-built", &frames, &labels);
+    let approached: Vec<u32> = approaches(&map, &frames, &labels)
+        .iter()
+        .map(|a| a.track)
+        .collect();
+    assert_eq!(approached, [1]);
+    assert_eq!((found.approaches, found.without_approach), (1, 1));
     let e = &found.measured.entering;
     assert_eq!(e.len(), 1, "{e:?}");
     let e = &e[0];

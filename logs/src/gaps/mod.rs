@@ -7,6 +7,14 @@
 //! finds them: presence 10 m before the line, passes at the entry's merge angle). Each
 //! offered gap is one decision, accept or reject, known from what the driver did.
 //!
+//! The drivers are the approaches of `replay eval` ([`crate::decisions::approaches`], with the
+//! same [`LabelConfig`]) to the ring's yield lines: a vehicle that crossed a yield line with
+//! less than `min_approach_s` of its track before it (first seen at the line, where the
+//! recorded area ends) has no recorded arrival, so neither its lag nor the gaps it may have
+//! rejected before it was seen are known; it is counted ([`RecordingGaps::without_approach`])
+//! and left out. An approach whose recording ends before the outcome of any gap offered to it
+//! is known gives no gap ([`RecordingGaps::approaches`] counts it all the same).
+//!
 //! Policies decide at the moment a gap is offered, from what is known then: the positions,
 //! speeds and headings of every vehicle in that frame and the driver's own past, never a
 //! later frame ([`Features`]). The gap's true length (the time to the next pass) is kept
@@ -27,7 +35,7 @@ use maps::Map;
 use maps::geometry::{Point, project_onto_polyline};
 use serde::{Deserialize, Serialize};
 
-use crate::decisions::nearest_circulating;
+use crate::decisions::{LabelConfig, approaches, nearest_circulating};
 use crate::project::LogFrame;
 use crate::traffic::measure::{
     GAP_CAP_S, Measurements, RingGeometry, Sample, Track, measure, tracks, wrap,
@@ -160,19 +168,37 @@ pub struct OfferedGap {
 #[derive(Debug, Clone, Default)]
 pub struct RecordingGaps {
     pub name: String,
+    /// The gaps offered to the approaches' drivers.
     pub gaps: Vec<OfferedGap>,
+    /// The traffic measured at the ring; its `entering` holds the approaches' drivers only
+    /// (what the fits of the critical gap and the follow-up headway read), its other figures
+    /// are every vehicle's.
     pub measured: Measurements,
+    /// Approaches to the ring's yield lines, as `replay eval` finds them
+    /// ([`crate::decisions::approaches`]): the drivers of `gaps`, and those offered no gap
+    /// whose outcome the recording shows (it ends first).
+    pub approaches: u64,
+    /// Vehicles that crossed a yield line of the ring towards it without an approach (less
+    /// than `min_approach_s` of their track before the line): left out.
+    pub without_approach: u64,
 }
 
-/// Every gap offered at the yield lines of `geometry`'s ring in `frames`. Drivers whose
+/// Every gap offered at the yield lines of `geometry`'s ring in `frames` to the drivers of
+/// the approaches to them (found with `labels`, as `replay eval` finds them). Drivers whose
 /// recording ends before they entered give their rejected gaps only.
 pub fn offered_gaps(
     map: &Map,
     geometry: &RingGeometry,
     name: &str,
     frames: &[LogFrame],
+    labels: &LabelConfig,
 ) -> RecordingGaps {
-    let measured = measure(geometry, frames);
+    let mut measured = measure(geometry, frames);
+    let approached: std::collections::BTreeSet<u32> = approaches(map, frames, labels)
+        .iter()
+        .filter(|a| a.roundabout == u64::from(geometry.roundabout.0))
+        .map(|a| a.track)
+        .collect();
     let tracks = tracks(geometry, frames);
     let t0 = frames.first().map_or(0, |f| f.time_ns);
     let entered_at: std::collections::BTreeMap<u32, usize> = measured
@@ -181,7 +207,11 @@ pub fn offered_gaps(
         .map(|e| (e.track, e.entry))
         .collect();
     let mut gaps = Vec::new();
-    for e in &measured.entering {
+    for e in measured
+        .entering
+        .iter()
+        .filter(|e| approached.contains(&e.track))
+    {
         let Some(me) = tracks.iter().find(|t| t.id == e.track) else {
             continue;
         };
@@ -244,10 +274,14 @@ pub fn offered_gaps(
             });
         }
     }
+    let crossed = measured.entering.len();
+    measured.entering.retain(|e| approached.contains(&e.track));
     RecordingGaps {
         name: name.to_owned(),
         gaps,
+        without_approach: (crossed - measured.entering.len()) as u64,
         measured,
+        approaches: approached.len() as u64,
     }
 }
 
@@ -337,8 +371,9 @@ fn frame_at(frames: &[LogFrame], t0: u64, t: f64) -> Option<&LogFrame> {
 /// The agent's decision at each of `gaps` of one recording (`log`, the same recording's
 /// frames and approaches): it drives each approach frame after frame as in `replay eval`,
 /// and its decision at a gap is the one at the last frame at or before the gap was offered
-/// (Permitted accepts; Caution and Not permitted reject). A gap whose driver has no
-/// approach to the map's yield lines is rejected (counted by the caller as any other).
+/// (Permitted accepts; Caution and Not permitted reject). Every gap [`offered_gaps`] finds
+/// has its driver's approach in `log` when both were found with the same labels; a gap
+/// without one (other labels) is rejected (counted by the caller as any other).
 #[cfg(feature = "policies")]
 pub fn agent_decisions(
     map: &Map,

@@ -252,8 +252,24 @@ pub struct GapsReport {
     /// Gaps offered in the scored recordings, and of them accepted.
     pub offered: u64,
     pub accepted: u64,
-    /// Approaches (drivers) that were offered them.
+    /// The roundabout (its id on the map) whose yield lines were measured.
+    pub roundabout: u32,
+    /// Approaches to its yield lines in the scored recordings: tracks crossing one of them
+    /// towards the ring with at least `min_approach_s` of track within `approach_m` before
+    /// it (`[logs.decisions]`), found as `replay eval` finds them (the same number as its
+    /// `approaches` on a map with one roundabout).
     pub approaches: u64,
+    /// Of them, those offered at least one gap whose outcome the recording shows: the
+    /// drivers of the offered gaps (the bootstrap resamples them).
+    pub approaches_offered_a_gap: u64,
+    /// The others: the recording ends before the outcome of any gap offered to them is
+    /// known (`approaches` − `approaches_offered_a_gap`).
+    pub approaches_without_a_known_gap: u64,
+    /// Vehicles that crossed a yield line of the roundabout towards it without an approach
+    /// (less of their track before the line: first seen at it), counted by neither command.
+    pub crossings_without_an_approach: u64,
+    /// What an approach is ([`crate::decisions::APPROACH_DEFINITION`]).
+    pub approach_definition: &'static str,
     /// The median critical gap by maximum likelihood, s: fitted on the training recordings
     /// when there are any, else on the scored ones (then only a description of them).
     pub critical_gap_s: f64,
@@ -276,17 +292,26 @@ pub struct GapsReport {
 pub fn markdown(r: &GapsReport) -> String {
     let pct = |x: f64| format!("{:.1}", 100.0 * x);
     let mut out = format!(
-        "# Gap acceptance\n\n{} gaps offered to {} approaches in {}, {} accepted. Critical gap {:.2} s \
+        "# Gap acceptance\n\n{} gaps offered to the drivers of {} approaches in {}, {} accepted. \
+         Approaches: {} to the yield lines of roundabout {} (tracks crossing one towards the ring \
+         with at least `min_approach_s` of track before it, as `replay eval` counts them), {} of \
+         them offered no gap whose outcome the recording shows (it ends first); {} more vehicles \
+         crossed a yield line with less of their track before it (no approach) and are left out. \
+         Critical gap {:.2} s \
          (95 % {:.2}-{:.2}, maximum likelihood), Raff {:.2} s, follow-up headway {}, fitted on {}.\n\n\
          Each policy decides when a gap is offered, from that moment's frame. Intervals: 95 % bootstrap \
-         over approaches; paired with **{}** on the same gaps (bootstrap over approaches, and exact \
-         McNemar over gaps).\n\n\
+         over the approaches offered a gap; paired with **{}** on the same gaps (bootstrap over \
+         those approaches, and exact McNemar over gaps).\n\n\
          | policy | accuracy % [95 %] | balanced % [95 %] | log-loss | accepted: judged accept / reject | rejected: judged accept / reject | vs reference, points [95 %] | p | McNemar p |\n\
          | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
         r.offered,
-        r.approaches,
+        r.approaches_offered_a_gap,
         r.scored.join(", "),
         r.accepted,
+        r.approaches,
+        r.roundabout,
+        r.approaches_without_a_known_gap,
+        r.crossings_without_an_approach,
         r.critical_gap_s,
         r.critical_gap_ci95_s.0,
         r.critical_gap_ci95_s.1,

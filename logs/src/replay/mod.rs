@@ -98,6 +98,16 @@ impl ReplayLog {
         }
     }
 
+    /// Vehicles that crossed a yield line of a ring towards it without an approach (less
+    /// than `min_approach_s` of their track before the line), counted by neither `replay
+    /// eval` nor `replay gaps`.
+    pub fn crossings_without_approach(&self) -> usize {
+        self.entered
+            .keys()
+            .filter(|t| !self.approaches.iter().any(|a| a.track == **t))
+            .count()
+    }
+
     /// The gap `track`'s vehicle accepted crossing its line `delay_s` after its driver did
     /// (0: the driver's own), measured as [`Measurements::gap_at`] does; None when the
     /// track entered no ring or the log ends first.

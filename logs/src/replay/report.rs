@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::REPLAY_SHARD_JSON;
 use super::tally::{LoopScore, LoopTally, Score, Tally};
-use crate::decisions::LabelConfig;
+use crate::decisions::{APPROACH_DEFINITION, LabelConfig};
 
 /// What a run evaluated, the same in every shard of it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -91,8 +91,12 @@ pub struct Report {
     pub train_logs: Vec<PathBuf>,
     pub labels: LabelConfig,
     pub behaviour_cloning: Option<BcSummary>,
+    /// Approaches to the yield lines of the map's roundabouts, each with its frames labelled
+    /// (`replay gaps` counts the same approaches of the roundabout it measures).
     pub approaches: usize,
     pub approaches_with_a_stop: usize,
+    /// What an approach is ([`APPROACH_DEFINITION`]).
+    pub approach_definition: &'static str,
     pub frames: BTreeMap<String, u64>,
     pub policies: Vec<Score>,
     /// With --closed-loop.
@@ -111,6 +115,7 @@ impl Report {
             behaviour_cloning: settings.behaviour_cloning,
             approaches: counts.approaches,
             approaches_with_a_stop: counts.approaches_with_a_stop,
+            approach_definition: APPROACH_DEFINITION,
             frames: counts.frames,
             policies: counts.policies.into_iter().map(Tally::score).collect(),
             closed_loop: counts.closed_loop.iter().map(LoopTally::score).collect(),
@@ -247,10 +252,12 @@ fn open_loop_markdown(r: &Report) -> String {
     let queued = r.frames.get("queued").copied().unwrap_or(0);
     let _ = writeln!(
         md,
-        "# Replay against human decisions\n\n{} logs, {} approaches to a yield line ({} with a stop); frames labelled go {go}, wait {wait}; not scored: ambiguous {amb}, queued behind another vehicle {queued}.\n",
+        "# Replay against human decisions\n\n{} logs, {} approaches to a yield line ({} with a stop); frames labelled go {go}, wait {wait}; not scored: ambiguous {amb}, queued behind another vehicle {queued}. An approach is a track's first crossing of a yield line towards the ring with at least {} s of the track within {} m before the line, its frames up to the crossing labelled; `replay gaps` counts the same approaches and scores the gaps offered to those whose recording shows the outcome.\n",
         r.logs.len(),
         r.approaches,
-        r.approaches_with_a_stop
+        r.approaches_with_a_stop,
+        r.labels.min_approach_s,
+        r.labels.approach_m,
     );
     let _ = writeln!(
         md,

@@ -64,9 +64,11 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
         progress.step(&format!("reading {}", path.display()));
         let log = read_replay_log(ctx, &map, &args.map, path, &labels)?;
         progress.step(&format!(
-            "{}: {} approaches",
+            "{}: {} approaches to a yield line ({} more vehicles crossed one with less than {} s of track before it: no approach)",
             log.name,
-            log.approaches.len()
+            log.approaches.len(),
+            log.crossings_without_approach(),
+            labels.min_approach_s
         ));
         logs.push(log);
     }

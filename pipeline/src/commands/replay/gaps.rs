@@ -52,10 +52,12 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
         r.logs.clone()
     };
     let measured = measure_recordings(ctx, &r.map, r.roundabout, &all, "replay gaps")?;
-    let mut recordings = recordings_gaps(&measured, &all);
+    // The drivers are the approaches `replay eval` finds, with the same labels.
+    let labels = ctx.config.logs.decisions.clone();
+    let mut recordings = recordings_gaps(&measured, &all, &labels);
     if let (Some(train_map), false) = (&args.train_map, args.train_logs.is_empty()) {
         let other = measure_recordings(ctx, train_map, None, &args.train_logs, "replay gaps")?;
-        recordings.extend(recordings_gaps(&other, &args.train_logs));
+        recordings.extend(recordings_gaps(&other, &args.train_logs, &labels));
     }
     let mut progress = ctx.ui.progress("replay gaps");
     let (scored, train) = recordings.split_at(r.logs.len());
@@ -98,7 +100,6 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
         let device = models::cpu_device();
         let (policy, task) = load_replay_agent(dir, &device, &mut |s| progress.note(s))?;
         let views = replay_views(&measured.map, &r.map, task, args.target_speed)?;
-        let labels = ctx.config.logs.decisions.clone();
         let mut agent: Vec<GapDecision> = Vec::with_capacity(gaps.len());
         for (recording, frames) in scored.iter().zip(&measured.frames) {
             let log = ReplayLog::new(
@@ -124,15 +125,22 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
 
     progress.step("scoring");
     let scores = score(&gaps, &decisions, ctx.cli.seed);
-    let approaches = gaps
+    // The approaches offered a gap (its drivers), of all the approaches found.
+    let offered_a_gap = gaps
         .iter()
         .map(|g| (&g.recording, g.track))
         .collect::<std::collections::BTreeSet<_>>()
-        .len();
+        .len() as u64;
+    let approaches: u64 = scored.iter().map(|r| r.approaches).sum();
     let report = GapsReport {
         offered: gaps.len() as u64,
         accepted: gaps.iter().filter(|g| g.accepted).count() as u64,
-        approaches: approaches as u64,
+        roundabout: measured.geometry.roundabout.0,
+        approaches,
+        approaches_offered_a_gap: offered_a_gap,
+        approaches_without_a_known_gap: approaches.saturating_sub(offered_a_gap),
+        crossings_without_an_approach: scored.iter().map(|r| r.without_approach).sum(),
+        approach_definition: logs::decisions::APPROACH_DEFINITION,
         critical_gap_s: fitted.critical_gap.median_s,
         critical_gap_ci95_s: fitted.critical_gap.median_ci95_s,
         raff_critical_gap_s: fitted.raff_s,
@@ -199,8 +207,13 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
     Ok(())
 }
 
-/// The offered gaps of each recording of `measured` (read from `paths`, in order).
-fn recordings_gaps(measured: &Measured, paths: &[std::path::PathBuf]) -> Vec<RecordingGaps> {
+/// The offered gaps of each recording of `measured` (read from `paths`, in order) to the
+/// drivers of its approaches found with `labels`.
+fn recordings_gaps(
+    measured: &Measured,
+    paths: &[std::path::PathBuf],
+    labels: &logs::decisions::LabelConfig,
+) -> Vec<RecordingGaps> {
     paths
         .iter()
         .zip(&measured.frames)
@@ -209,7 +222,7 @@ fn recordings_gaps(measured: &Measured, paths: &[std::path::PathBuf]) -> Vec<Rec
                 || path.display().to_string(),
                 |n| n.to_string_lossy().into_owned(),
             );
-            offered_gaps(&measured.map, &measured.geometry, &name, frames)
+            offered_gaps(&measured.map, &measured.geometry, &name, frames, labels)
         })
         .collect()
 }

@@ -31,8 +31,9 @@ pub enum ReplayCommand {
     /// Agreement of policies (an agent, the gap rules, always go) with real drivers' go /
     /// wait decisions at roundabout entries, frame by frame.
     Eval(EvalArgs),
-    /// Gap acceptance at roundabout entries: every gap offered to a recorded driver and
-    /// whether it entered, with the critical gap fitted on --train-log recordings, and the
+    /// Gap acceptance at roundabout entries: every gap offered to a recorded driver (the
+    /// drivers of `replay eval`'s approaches) and whether it entered, with the critical gap
+    /// fitted on --train-log recordings, and the
     /// policies (critical-gap rules, distance rules, behaviour cloning, an agent) scored on
     /// each gap: gaps.json, gaps.md, gaps.csv.
     Gaps(GapsArgs),
