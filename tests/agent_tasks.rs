@@ -140,6 +140,25 @@ fn validation_chooses_the_best_checkpoint_without_changing_training() {
         &format!("{SMALL_OBSTACLE_RUN}[agent.validation]\nepisodes = 6\n"),
     );
     assert_success(&out, "agent train with [agent.validation]");
+    // Off a terminal, each validation says what it is doing and counts its episodes (6 per
+    // scenario, two scenarios), then training goes on: no silent stretch.
+    let err = common::stderr(&out);
+    for step in [1000, 2000] {
+        assert!(
+            err.contains(&format!(
+                "agent train: validating the checkpoint at step {step}: 12 episodes"
+            )),
+            "{err}"
+        );
+    }
+    assert!(
+        err.contains("agent train: validating the final network: 12 episodes"),
+        "{err}"
+    );
+    assert!(
+        err.contains("agent train: validating the final network: 12/12 episodes"),
+        "{err}"
+    );
     let (plain, out) = train_obstacle(dir.path(), "plain", SMALL_OBSTACLE_RUN);
     assert_success(&out, "agent train without validation");
     assert!(!dir.path().join("validated.partial").exists());
@@ -298,6 +317,29 @@ fn insertion_trains_on_several_maps() {
     assert_eq!(maps.len(), 2, "{task}");
     assert_eq!(maps[1]["roundabout"], 0);
     assert_eq!(task["map"], maps[0]["path"]);
+
+    // An evaluation on one ring names it in eval.json and in eval.md's title.
+    let eval = dir.path().join("eval_ring");
+    let out = agent_eval(
+        &agent,
+        1,
+        &[
+            "--roundabout",
+            "0",
+            "--traffic",
+            "low",
+            "--aggressiveness",
+            "0.5",
+            "--no-baselines",
+        ],
+        &eval,
+    );
+    assert_success(&out, "agent eval --roundabout 0");
+    let report = read_json(&eval.join("eval.json"));
+    assert_eq!(report["roundabouts"], serde_json::json!([0]), "{report}");
+    let table = std::fs::read_to_string(eval.join("eval.md")).unwrap();
+    let title = table.lines().next().unwrap_or("");
+    assert!(title.ends_with(", roundabout 0"), "{title}");
 
     std::fs::write(&list, format!("{} zero\n", map.display())).unwrap();
     let refused = dir.path().join("refused");

@@ -423,9 +423,15 @@ fn map_info_lists_multi_lane_rings_and_mini_roundabouts() {
     let input = data.join("osm/roundabouts/andorra.osm.pbf");
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("andorra");
-    assert_success(
-        &import(&input, &out, &["-q", "--rerun", "off"]),
-        "map import andorra",
+    let imported = import(&input, &out, &["--rerun", "off"]);
+    assert_success(&imported, "map import andorra");
+    // Every tagged ring is found; the two tagged mini-roundabout nodes left as plain
+    // junctions are warned about as such, with a reason, not as rings.
+    let warnings = stderr(&imported);
+    assert!(!warnings.contains("tagged ring"), "{warnings}");
+    assert!(
+        warnings.contains("2 tagged mini-roundabout nodes driven as ordinary junctions (first: mini-roundabout node "),
+        "{warnings}"
     );
     let info = run([
         std::ffi::OsString::from("map"),

@@ -145,7 +145,10 @@ impl ValidationHistory {
 }
 
 /// Validates a greedy policy: per validation condition, the share that reached the goal.
-pub type ValidationRun = Box<dyn Fn(&QPolicy) -> Vec<(String, f64)>>;
+pub type ValidationRun = Box<dyn Fn(&QPolicy, &EpisodesDone<'_>) -> Vec<(String, f64)>>;
+
+/// Told how many more validation episodes have finished (called from worker threads).
+pub type EpisodesDone<'a> = dyn Fn(u64) + Sync + 'a;
 
 /// Validation during a training run: the history, and the best checkpoint so far (kept in
 /// memory, and in `DIR.partial/best-<steps>` for `--resume`).
@@ -193,15 +196,20 @@ impl Validation {
         Validation { run, history, best }
     }
 
-    /// Validates `checkpoint`; true when it is the best so far.
-    pub fn validate(&mut self, checkpoint: &Checkpoint) -> (ValidationPoint, bool) {
+    /// Validates `checkpoint` (`done` is told of the episodes as they finish); true when it is
+    /// the best so far.
+    pub fn validate(
+        &mut self,
+        checkpoint: &Checkpoint,
+        done: &EpisodesDone<'_>,
+    ) -> (ValidationPoint, bool) {
         let policy = QPolicy::new(
             checkpoint.online.clone(),
             checkpoint.shape.spec(),
             checkpoint.shape.actions,
             crate::cpu_device(),
         );
-        let point = ValidationPoint::new(checkpoint.state.steps, (self.run)(&policy));
+        let point = ValidationPoint::new(checkpoint.state.steps, (self.run)(&policy, done));
         let better = self.history.add(point.clone());
         if better {
             self.best = Some(checkpoint.clone());
@@ -214,12 +222,20 @@ impl Validation {
         self.best.as_ref()
     }
 
-    /// The agent of the run: the final checkpoint, validated, unless an earlier one scored
-    /// higher; and the history with the choice.
-    pub fn choose(mut self, last: Checkpoint) -> (Checkpoint, ValidationHistory) {
-        let already = self.history.points.last().map(|p| p.steps) == Some(last.state.steps);
-        if !already {
-            self.validate(&last);
+    /// Whether `last` (the final checkpoint) still needs validating before [`Self::choose`].
+    pub fn needs(&self, last: &Checkpoint) -> bool {
+        self.history.points.last().map(|p| p.steps) != Some(last.state.steps)
+    }
+
+    /// The agent of the run: the final checkpoint, validated (`done` is told of its
+    /// episodes), unless an earlier one scored higher; and the history with the choice.
+    pub fn choose(
+        mut self,
+        last: Checkpoint,
+        done: &EpisodesDone<'_>,
+    ) -> (Checkpoint, ValidationHistory) {
+        if self.needs(&last) {
+            self.validate(&last, done);
         }
         let chosen = match self.best {
             Some(best) if Some(best.state.steps) == self.history.best_steps => best,

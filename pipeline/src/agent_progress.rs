@@ -36,6 +36,8 @@ pub struct TrainProgress<'a, 'b> {
     pub recent: OutcomeRates,
     /// Validation of every checkpoint, when `[agent.validation]` asks for it.
     pub validation: Option<Validation>,
+    /// Episodes of one validation (shown while a checkpoint is validated).
+    pub validation_episodes: u64,
     /// The first error the observer met (saving a checkpoint, logging).
     pub error: Option<anyhow::Error>,
 }
@@ -74,6 +76,7 @@ impl<'a, 'b> TrainProgress<'a, 'b> {
             report_every: Duration::from_secs(if span.verbose { 1 } else { 2 }),
             recent: OutcomeRates::new(),
             validation,
+            validation_episodes: 0,
             error: None,
         }
     }
@@ -135,7 +138,18 @@ impl TrainObserver for TrainProgress<'_, '_> {
         // Validation first: a kill before the checkpoint is written resumes from the one
         // before, whose best checkpoint is still kept (see `start_validation`).
         if let Some(validation) = &mut self.validation {
-            let (point, best) = validation.validate(checkpoint);
+            // The training bar gives way to the validation's episodes, then comes back with
+            // its rate and ETA counted from here (validation time is not training time).
+            let steps = checkpoint.state.steps;
+            self.progress.counted(
+                &format!("validating the checkpoint at step {steps}:"),
+                self.validation_episodes,
+                "episodes",
+            );
+            let progress = &*self.progress;
+            let (point, best) = validation.validate(checkpoint, &|n| progress.inc(n));
+            self.progress
+                .count_again("training", self.total_steps, "transitions", steps);
             self.progress.note(&format!(
                 "{}{}",
                 point.describe(),

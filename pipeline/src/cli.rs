@@ -340,6 +340,66 @@ impl From<OnErrorArg> for datasets::error::OnError {
     }
 }
 
+/// The command that `args` (the command line without the program's name) name, as far as
+/// they name one: `pipeline agent eval` for `agent eval --episodes ten`.
+fn command_named(args: &[String]) -> String {
+    use clap::CommandFactory;
+    let mut command = Cli::command();
+    let mut path = vec![String::from("pipeline")];
+    for arg in args.iter().filter(|a| !a.starts_with('-')) {
+        let Some(sub) = command.find_subcommand(arg).cloned() else {
+            continue;
+        };
+        path.push(sub.get_name().to_owned());
+        command = sub;
+        if !command.has_subcommands() {
+            break;
+        }
+    }
+    path.join(" ")
+}
+
+/// A command-line usage error (clap's) as every other error reads: one `error:` line with
+/// the problem, then a `hint:` line (clap's tip, if it has one, and the command whose
+/// `--help` lists the options). `args` is the command line without the program's name.
+pub fn usage_error_text(err: &clap::Error, args: &[String]) -> String {
+    let rendered = err.render().to_string();
+    let mut problem: Vec<String> = Vec::new();
+    let mut tips: Vec<String> = Vec::new();
+    let mut command = command_named(args);
+    for line in rendered.lines() {
+        let text = line.trim();
+        if let Some(rest) = text.strip_prefix("error: ") {
+            problem.push(rest.to_owned());
+        } else if let Some(tip) = text.strip_prefix("tip: ") {
+            tips.push(tip.to_owned());
+        } else if let Some(usage) = text.strip_prefix("Usage: ") {
+            let words: Vec<&str> = usage
+                .split_whitespace()
+                .take_while(|w| !w.starts_with(['[', '<', '-']))
+                .collect();
+            if words.len() > command.split(' ').count() {
+                command = words.join(" ");
+            }
+        } else if !text.is_empty() && !text.starts_with("For more information") {
+            // The lines of a problem that spans several (the missing arguments).
+            problem.push(text.to_owned());
+        }
+    }
+    let problem = if problem.is_empty() {
+        "the command line is not valid".to_owned()
+    } else {
+        problem.join(" ")
+    };
+    let help = format!("`{command} --help` lists the options");
+    let hint = if tips.is_empty() {
+        help
+    } else {
+        format!("{}; {help}", tips.join("; "))
+    };
+    format!("error: {problem}\nhint: {hint}\n")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -383,6 +443,59 @@ mod tests {
         };
         assert_eq!((r.from.as_str(), r.to.as_str()), ("-1.5,2", "3,-4"));
         Ok(())
+    }
+
+    #[test]
+    fn usage_errors_have_a_problem_line_and_a_hint() {
+        let text = |args: &[&str]| match Cli::try_parse_from(args) {
+            Ok(_) => panic!("{args:?} parsed"),
+            Err(e) => {
+                let rest: Vec<String> = args[1..].iter().map(|a| (*a).to_owned()).collect();
+                usage_error_text(&e, &rest)
+            }
+        };
+        let bad = text(&[
+            "pipeline",
+            "agent",
+            "eval",
+            "--agent",
+            "a",
+            "--episodes",
+            "ten",
+        ]);
+        let lines: Vec<&str> = bad.lines().collect();
+        assert_eq!(lines.len(), 2, "{bad}");
+        assert!(
+            lines[0].starts_with("error: invalid value 'ten' for '--episodes"),
+            "{bad}"
+        );
+        assert_eq!(
+            lines[1],
+            "hint: `pipeline agent eval --help` lists the options"
+        );
+        let missing = text(&["pipeline", "map", "import"]);
+        assert!(
+            missing.starts_with("error: the following required arguments were not provided:"),
+            "{missing}"
+        );
+        assert!(missing.contains("--out <DIR>"), "{missing}");
+        assert!(
+            missing.ends_with("hint: `pipeline map import --help` lists the options\n"),
+            "{missing}"
+        );
+        let typo = text(&[
+            "pipeline",
+            "agent",
+            "eval",
+            "--agent",
+            "a",
+            "--episode",
+            "3",
+        ]);
+        assert!(
+            typo.contains("hint: ") && typo.contains("--episodes"),
+            "{typo}"
+        );
     }
 
     #[test]

@@ -18,7 +18,17 @@ fn main() -> ExitCode {
     if std::env::var_os("PIPELINE_BURN_KERNELS").is_some_and(|v| v == "1") {
         models::layers::use_own_kernels(false);
     }
-    let cli = pipeline::Cli::parse();
+    let cli = match pipeline::Cli::try_parse() {
+        Ok(cli) => cli,
+        // --help and --version print to stdout and exit 0.
+        Err(e) if !e.use_stderr() => e.exit(),
+        Err(e) => {
+            let args: Vec<String> = std::env::args().skip(1).collect();
+            let text = pipeline::cli::usage_error_text(&e, &args);
+            let _ = std::io::Write::write_all(&mut std::io::stderr(), text.as_bytes());
+            return ExitCode::from(2);
+        }
+    };
     let verbosity = cli.verbosity();
     pipeline::ui::init_logging(verbosity);
     match pipeline::run(cli) {

@@ -372,6 +372,12 @@ impl Progress<'_> {
             .store(tenths(position, total), Ordering::Relaxed);
     }
 
+    /// Goes back to counted work that another counted step interrupted (`training`, after a
+    /// validation), at `done` of `total`: no new line, and the rate and ETA count from here.
+    pub fn count_again(&self, what: &str, total: u64, unit: &str, done: u64) {
+        self.start_counting(what, unit, total, done);
+    }
+
     /// Starts the counted work at `done` (a resumed run): the rate and ETA count from here.
     pub fn resume_at(&self, done: u64) {
         self.bar.set_position(done);

@@ -162,13 +162,15 @@ where
 
 /// Validates `policy` for a training run at `traffic`: per validation condition of the task
 /// ([`Task::validation_conditions`]), the share of `episodes` greedy episodes, drawn as an
-/// evaluation with `seed` draws them, that reached the goal.
+/// evaluation with `seed` draws them, that reached the goal. `done` is told how many more
+/// episodes have finished, as they finish.
 pub fn reached_shares<T, P>(
     setup: &Arc<T::Setup>,
     policy: &P,
     traffic: TrafficLevel,
     episodes: usize,
     seed: u64,
+    done: &(dyn Fn(u64) + Sync),
 ) -> Vec<(String, f64)>
 where
     T: Task,
@@ -181,7 +183,9 @@ where
         seed,
         lockstep: VALIDATION_LOCKSTEP,
     };
-    let episodes = evaluate_task(setup, || policy.clone(), &conditions, &options, &|_| {});
+    let episodes = evaluate_task(setup, || policy.clone(), &conditions, &options, &|n| {
+        done(n as u64);
+    });
     names
         .into_iter()
         .zip(&episodes)
@@ -334,9 +338,31 @@ pub struct EvalHeader {
     pub map: Option<PathBuf>,
     /// The map the agent was trained on.
     pub trained_on: Option<PathBuf>,
+    /// The roundabouts of the map evaluated on (empty for a task on none).
+    pub roundabouts: Vec<u32>,
     /// Per condition and policy.
     pub episodes: usize,
     pub seed: u64,
+}
+
+impl EvalHeader {
+    /// " on MAP, roundabout N" (or "roundabouts N, M"), as the reports' titles say where the
+    /// agent was judged; empty for a task on its own road.
+    pub fn place(&self) -> String {
+        let mut place = self
+            .map
+            .as_ref()
+            .map_or(String::new(), |m| format!(" on {}", m.display()));
+        if !self.roundabouts.is_empty() {
+            let ids: Vec<String> = self.roundabouts.iter().map(u32::to_string).collect();
+            place.push_str(&format!(
+                ", roundabout{} {}",
+                if ids.len() == 1 { "" } else { "s" },
+                ids.join(", ")
+            ));
+        }
+        place
+    }
 }
 
 /// The files of an evaluation.
@@ -357,6 +383,8 @@ struct ConditionsJson<'a> {
     task: TaskId,
     map: &'a Option<PathBuf>,
     trained_on: &'a Option<PathBuf>,
+    #[serde(skip_serializing_if = "<[u32]>::is_empty")]
+    roundabouts: &'a [u32],
     episodes: usize,
     seed: u64,
     conditions: Vec<NamedCondition>,
@@ -413,6 +441,7 @@ pub fn conditions_report<T: Task>(
         task: header.task,
         map: &header.map,
         trained_on: &header.trained_on,
+        roundabouts: &header.roundabouts,
         episodes: header.episodes,
         seed: header.seed,
         conditions,
@@ -421,10 +450,7 @@ pub fn conditions_report<T: Task>(
         "# {} ({}){}\n\n{} episodes per condition and policy, seed {}; the same episodes for every policy.\n\n{tables}",
         header.agent.display(),
         header.task.name(),
-        header
-            .map
-            .as_ref()
-            .map_or(String::new(), |m| format!(" on {}", m.display())),
+        header.place(),
         header.episodes,
         header.seed,
     );

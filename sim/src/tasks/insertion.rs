@@ -919,6 +919,10 @@ impl Task for RoundaboutInsertion {
         setup.map()
     }
 
+    fn roundabouts(setup: &InsertionSetup) -> Vec<u32> {
+        setup.layouts().map(|l| l.roundabout.0).collect()
+    }
+
     fn deciding_every(config: &InsertionConfig, steps: usize) -> Option<InsertionConfig> {
         Some(config.deciding_every(steps))
     }

@@ -228,6 +228,8 @@ struct ReportJson<'a> {
     map: &'a std::path::Path,
     /// The map the agent was trained on.
     trained_on: &'a std::path::Path,
+    /// The roundabouts of the map evaluated on.
+    roundabouts: &'a [u32],
     episodes: usize,
     seed: u64,
     conditions: Vec<ConditionReport>,
@@ -273,6 +275,7 @@ pub(crate) fn report(
         agent: &header.agent,
         map: &map,
         trained_on: &trained_on,
+        roundabouts: &header.roundabouts,
         episodes: header.episodes,
         seed: header.seed,
         conditions: conditions
@@ -293,9 +296,9 @@ pub(crate) fn report(
             .collect(),
     };
     let mut markdown = format!(
-        "# {} on {}\n\n{} episodes per condition and policy, seed {}; the same episodes for every policy.\n\n{}",
+        "# {}{}\n\n{} episodes per condition and policy, seed {}; the same episodes for every policy.\n\n{}",
         header.agent.display(),
-        map.display(),
+        header.place(),
         header.episodes,
         header.seed,
         markdown_table(&by_condition(&rows, conditions.len()))

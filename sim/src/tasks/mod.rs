@@ -103,6 +103,12 @@ pub trait Task: Env + Sized + 'static {
     /// The map the task drives on.
     fn map(setup: &Self::Setup) -> &Map;
 
+    /// The roundabouts of the map the task runs on (their ids, as `map info` lists them);
+    /// empty for a task that runs on no roundabout.
+    fn roundabouts(_setup: &Self::Setup) -> Vec<u32> {
+        Vec::new()
+    }
+
     /// The camera table of `config` when it asks for `view = "camera-segmentation"`: what
     /// the observer given to [`Task::setup`] is built from. None by default (no camera view).
     fn camera_view(_config: &Self::Config) -> Option<&CameraViewConfig> {

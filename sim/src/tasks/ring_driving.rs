@@ -677,6 +677,10 @@ impl Task for RingDriving {
         setup.map()
     }
 
+    fn roundabouts(setup: &RingDrivingSetup) -> Vec<u32> {
+        setup.layouts().map(|l| l.roundabout.0).collect()
+    }
+
     fn in_world(
         config: &RingDrivingConfig,
         traffic: &crate::world::TrafficConfig,

@@ -150,6 +150,7 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
         task: task.task,
         map: map.clone(),
         trained_on: task.map.clone(),
+        roundabouts: T::roundabouts(&setup),
         episodes: args.episodes,
         seed: ctx.cli.seed,
     };

@@ -16,7 +16,7 @@ use models::ModelError;
 use models::dqn::DqnConfig;
 use models::policy::QPolicy;
 use models::training::TrainSummary;
-use models::validation::{VALIDATION_FILE, validation_seed};
+use models::validation::{EpisodesDone, VALIDATION_FILE, validation_seed};
 use sim::env::Rotating;
 use sim::tasks::{Task, TaskVisitor};
 use sim::world::TrafficLevel;
@@ -159,6 +159,8 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             .context("the task's config cannot be written as JSON")?,
         validation: validation_config,
     };
+    // Episodes of one validation (every condition on every training map).
+    let mut validation_episodes = 0;
     let validation = if validation_config.is_off() {
         None
     } else {
@@ -175,9 +177,11 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             None => setups.clone(),
         };
         let episodes = validation_config.episodes;
+        validation_episodes =
+            (episodes * T::validation_conditions(traffic).len() * validation_setups.len()) as u64;
         let validation_seed = validation_seed(seed);
         // Each training map's validation episodes; the shares averaged over the maps.
-        let run = Box::new(move |policy: &QPolicy| {
+        let run = Box::new(move |policy: &QPolicy, done: &EpisodesDone<'_>| {
             let mut shares: Vec<(String, f64)> = Vec::new();
             for setup in &validation_setups {
                 let per = sim::eval::reached_shares::<T, _>(
@@ -186,6 +190,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
                     traffic,
                     episodes,
                     validation_seed,
+                    done,
                 );
                 if shares.is_empty() {
                     shares = per;
@@ -231,6 +236,7 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     };
     let rec = recording.stream();
     let mut observer = TrainProgress::new(&mut progress, rec, &partial, &task, span, validation);
+    observer.validation_episodes = validation_episodes;
     let result = models::dqn::train(
         &dqn,
         seed,
@@ -258,8 +264,14 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             last
         }
         Some(validation) => {
-            progress.step("validating the final network");
-            let (chosen, history) = validation.choose(last);
+            if validation.needs(&last) {
+                progress.counted(
+                    "validating the final network:",
+                    validation_episodes,
+                    "episodes",
+                );
+            }
+            let (chosen, history) = validation.choose(last, &|n| progress.inc(n));
             if let Some(point) = history.best() {
                 progress.note(&format!(
                     "the agent: the checkpoint of the best {}",

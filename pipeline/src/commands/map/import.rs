@@ -207,12 +207,8 @@ pub fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         ctx.ui
             .info(&format!("map import: {}", plural(minis, "mini-roundabout")));
     }
-    let not_imported = summary.ring_problems.iter().filter(|p| !p.imported).count();
-    if not_imported > 0 {
-        ctx.ui.warn(&format!(
-            "{} not imported as roundabouts (reasons in {SUMMARY_JSON}, `pipeline map info`)",
-            plural(not_imported, "tagged ring")
-        ));
+    for line in not_imported_lines(&summary.ring_problems) {
+        ctx.ui.warn(&line);
     }
     let skipped = &summary.skipped;
     if skipped.ways_missing_nodes + skipped.degenerate_ways + skipped.invalid_nodes > 0 {
@@ -224,6 +220,32 @@ pub fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
         ));
     }
     Ok(())
+}
+
+/// The warnings for the tagged rings and mini-roundabout nodes left out of the roundabouts,
+/// each kind counted on its own with its first reason.
+fn not_imported_lines(problems: &[maps::model::RingProblem]) -> Vec<String> {
+    let (nodes, rings): (Vec<_>, Vec<_>) = problems
+        .iter()
+        .filter(|p| !p.imported)
+        .partition(|p| p.osm_node_id.is_some());
+    let mut lines = Vec::new();
+    if let Some(first) = rings.first() {
+        lines.push(format!(
+            "{} not imported as {} (first: {}; every reason in {SUMMARY_JSON}, `pipeline map info`)",
+            plural(rings.len(), "tagged ring"),
+            if rings.len() == 1 { "a roundabout" } else { "roundabouts" },
+            first.reason
+        ));
+    }
+    if let Some(first) = nodes.first() {
+        lines.push(format!(
+            "{} driven as ordinary junctions (first: {}; every reason in {SUMMARY_JSON}, `pipeline map info`)",
+            plural(nodes.len(), "tagged mini-roundabout node"),
+            first.reason.trim_end_matches("; driven as an ordinary junction")
+        ));
+    }
+    lines
 }
 
 fn write_outputs(
@@ -285,4 +307,51 @@ fn write_outputs(
     text.push('\n');
     write(SUMMARY_JSON, text.as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use maps::model::RingProblem;
+
+    fn problem(node: Option<i64>, reason: &str, imported: bool) -> RingProblem {
+        RingProblem {
+            osm_way_ids: if node.is_some() { vec![] } else { vec![7] },
+            osm_node_id: node,
+            reason: reason.into(),
+            imported,
+        }
+    }
+
+    #[test]
+    fn rings_and_mini_roundabout_nodes_are_counted_apart() {
+        let lines = not_imported_lines(&[
+            problem(
+                Some(5),
+                "mini-roundabout node 5: way 9 ends within 4.0 m of it; driven as an ordinary junction",
+                false,
+            ),
+            problem(
+                Some(6),
+                "mini-roundabout node 6: x; driven as an ordinary junction",
+                false,
+            ),
+            problem(None, "ring way 7 has 3 nodes missing", false),
+            problem(None, "ring way 8: lanes=abc, taken as 1", true),
+        ]);
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(
+            lines[0].starts_with("1 tagged ring not imported as a roundabout (first: ring way 7"),
+            "{}",
+            lines[0]
+        );
+        assert!(
+            lines[1].starts_with(
+                "2 tagged mini-roundabout nodes driven as ordinary junctions (first: mini-roundabout node 5: way 9 ends within 4.0 m of it;"
+            ),
+            "{}",
+            lines[1]
+        );
+        assert!(not_imported_lines(&[problem(None, "x", true)]).is_empty());
+    }
 }
