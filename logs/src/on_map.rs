@@ -44,11 +44,11 @@ impl OnMap {
     }
 }
 
-/// The recording's road users do not drive on the map.
+/// The recording's road users do not drive on the map: too few of their positions lie near
+/// a lane (the message gives the figures; the caller names the recording and the map).
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 #[error(
-    "its road users do not drive on the map: {:.1} % of their {} positions lie within {} m of a lane \
-     (at least {:.0} % must)",
+    "{:.1} % of their {} positions lie within {} m of a lane (at least {:.0} % must)",
     .0.share() * 100.0,
     .0.positions,
     NEAR_LANE_M,
@@ -142,9 +142,9 @@ mod tests {
         };
         assert!(!m.on_map());
         let err = NotOnMap(m).to_string();
-        assert!(
-            err.contains("70.0 % of their 10 positions lie within 5 m"),
-            "{err}"
+        assert_eq!(
+            err,
+            "70.0 % of their 10 positions lie within 5 m of a lane (at least 80 % must)"
         );
         assert!(
             OnMap {
