@@ -18,7 +18,8 @@ use serde::Deserialize;
 
 use super::error::{LogError, LogResult};
 use super::mcap_read::McapFacts;
-use super::source::{RawMessage, ReadOptions, ReadReport, Topic, read_mcap_file};
+use crate::mcap_read::read_mcap_file;
+use crate::raw::{RawMessage, ReadOptions, ReadReport, Topic};
 
 /// A bag's storage plugin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -8,9 +8,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::decode::{Decoded, MessageKind};
 use super::error::DecodeError;
 use super::msgs::{Bytes, Point, Pose, Quaternion, Vector3};
+use crate::kind::MessageKind;
 
 type Result<T> = std::result::Result<T, DecodeError>;
 
@@ -135,7 +135,7 @@ fn base64_bytes<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<B
 }
 
 /// Decodes a JSON-encoded Foxglove message.
-pub fn decode_json(kind: MessageKind, payload: &[u8]) -> Result<Decoded> {
+pub fn decode_json(kind: MessageKind, payload: &[u8]) -> Result<FoxgloveMessage> {
     fn j<T: for<'de> Deserialize<'de>>(payload: &[u8]) -> Result<T> {
         serde_json::from_slice(payload).map_err(|e| DecodeError::Invalid(format!("JSON: {e}")))
     }
@@ -148,11 +148,11 @@ pub fn decode_json(kind: MessageKind, payload: &[u8]) -> Result<Decoded> {
         MessageKind::FoxgloveSceneUpdate => FoxgloveMessage::SceneUpdate(j(payload)?),
         other => return Err(DecodeError::Unsupported(format!("{other:?} as JSON"))),
     };
-    Ok(Decoded::Foxglove(message))
+    Ok(message)
 }
 
 /// Decodes a protobuf-encoded Foxglove message.
-pub fn decode_protobuf(kind: MessageKind, payload: &[u8]) -> Result<Decoded> {
+pub fn decode_protobuf(kind: MessageKind, payload: &[u8]) -> Result<FoxgloveMessage> {
     let message = match kind {
         MessageKind::FoxgloveLocationFix => FoxgloveMessage::LocationFix(location_fix(payload)?),
         MessageKind::FoxgloveFrameTransform => {
@@ -174,7 +174,7 @@ pub fn decode_protobuf(kind: MessageKind, payload: &[u8]) -> Result<Decoded> {
         MessageKind::FoxgloveSceneUpdate => FoxgloveMessage::SceneUpdate(scene_update(payload)?),
         other => return Err(DecodeError::Unsupported(format!("{other:?} as protobuf"))),
     };
-    Ok(Decoded::Foxglove(message))
+    Ok(message)
 }
 
 /// One protobuf field value.
@@ -536,7 +536,7 @@ mod tests {
         key(&mut msg, 5, 0);
         varint(&mut msg, 2);
         bytes(&mut msg, 99, b"unknown field, skipped");
-        let Decoded::Foxglove(FoxgloveMessage::LocationFix(fix)) =
+        let FoxgloveMessage::LocationFix(fix) =
             decode_protobuf(MessageKind::FoxgloveLocationFix, &msg)?
         else {
             panic!("not a location fix")
@@ -578,7 +578,7 @@ mod tests {
         bytes(&mut entity, 13, b"");
         let mut update = Vec::new();
         bytes(&mut update, 2, &entity);
-        let Decoded::Foxglove(FoxgloveMessage::SceneUpdate(u)) =
+        let FoxgloveMessage::SceneUpdate(u) =
             decode_protobuf(MessageKind::FoxgloveSceneUpdate, &update)?
         else {
             panic!("not a scene update")
@@ -595,8 +595,7 @@ mod tests {
         let json = br#"{"deletions":[],"entities":[{"timestamp":{"sec":1,"nsec":2},"frame_id":"map","id":"car-7",
             "cubes":[{"pose":{"position":{"x":10,"y":20,"z":0},"orientation":{"x":0,"y":0,"z":0,"w":1}},
             "size":{"x":4.5,"y":1.8,"z":1.5},"color":{"r":1,"g":0,"b":0,"a":1}}],"texts":[]}]}"#;
-        let Decoded::Foxglove(FoxgloveMessage::SceneUpdate(j)) =
-            decode_json(MessageKind::FoxgloveSceneUpdate, json)?
+        let FoxgloveMessage::SceneUpdate(j) = decode_json(MessageKind::FoxgloveSceneUpdate, json)?
         else {
             panic!("not a scene update")
         };
@@ -607,7 +606,7 @@ mod tests {
     #[test]
     fn json_image_data_is_base64() -> Result<()> {
         let json = br#"{"timestamp":{"sec":3,"nsec":0},"frame_id":"cam","data":"AAEC/w==","format":"jpeg"}"#;
-        let Decoded::Foxglove(FoxgloveMessage::CompressedImage(img)) =
+        let FoxgloveMessage::CompressedImage(img) =
             decode_json(MessageKind::FoxgloveCompressedImage, json)?
         else {
             panic!("not an image")

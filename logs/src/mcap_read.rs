@@ -11,6 +11,7 @@
 
 use std::borrow::Cow;
 use std::collections::HashMap;
+use std::fs::File;
 use std::io::Read;
 use std::ops::ControlFlow;
 use std::path::Path;
@@ -19,22 +20,9 @@ use mcap::records::{self, ChunkHeader, Record, op};
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use super::error::{LogError, LogResult};
-use super::source::{RawMessage, ReadOptions, ReadReport, Topic};
+use crate::raw::{RawMessage, ReadOptions, ReadReport, Topic};
 
-/// How much a corrupt file may make the reader allocate.
-#[derive(Debug, Clone, Copy)]
-pub struct Limits {
-    /// Largest record (or chunk, compressed or not) accepted.
-    pub max_record_bytes: usize,
-}
-
-impl Default for Limits {
-    fn default() -> Self {
-        Limits {
-            max_record_bytes: 1 << 30,
-        }
-    }
-}
+pub use crate::raw::Limits;
 
 /// Bytes read from the source per step when the reader asks for less (one system call per
 /// record would be slow; more only costs buffer memory).
@@ -543,4 +531,16 @@ pub fn read_messages<R: Read>(
     })?;
     report.topics = channels.topics;
     Ok(report)
+}
+
+/// Reads one MCAP file from disk.
+pub fn read_mcap_file(
+    path: &Path,
+    options: &ReadOptions,
+    facts: &mut McapFacts,
+    each: impl FnMut(&Topic, RawMessage<'_>) -> ControlFlow<()>,
+) -> LogResult<ReadReport> {
+    let file = File::open(path).map_err(|e| LogError::io(path, e))?;
+    let len = file.metadata().map_err(|e| LogError::io(path, e))?.len();
+    read_messages(file, len, path, options, facts, each)
 }

@@ -174,7 +174,7 @@ pub fn project_shard(
 
 /// Speeds along a track of (time ns, position) by central differences (one-sided at the
 /// ends), m/s; 0 where the times do not advance.
-pub(crate) fn central_speeds(track: &[(u64, Point)]) -> Vec<f64> {
+pub fn central_speeds(track: &[(u64, Point)]) -> Vec<f64> {
     (0..track.len())
         .map(|j| {
             let (a, b) = (j.saturating_sub(1), (j + 1).min(track.len() - 1));

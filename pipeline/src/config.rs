@@ -73,7 +73,7 @@ pub struct LogsConfig {
     /// Topics named for roles; the others are detected (`logs::roles`).
     pub roles: logs::roles::RoleConfig,
     /// The go / wait labelling of `replay eval` and `agent train --offline`.
-    pub decisions: logs::decisions::LabelConfig,
+    pub decisions: traffic::decisions::LabelConfig,
 }
 
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

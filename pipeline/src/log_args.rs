@@ -6,13 +6,13 @@ use std::path::Path;
 
 use anyhow::Result;
 use clap::Args;
-use logs::decisions::LabelConfig;
+use judge::ReplayLog;
 use logs::decode::read_decoded;
 use logs::project::log_frames;
-use logs::replay::ReplayLog;
 use logs::roles::{Role, RoleConfig, TopicRoles, assign_roles, topic_kind};
 use logs::source::{Log, ReadOptions};
 use logs::{DecodedLog, LogError, MessageKind};
+use traffic::decisions::LabelConfig;
 
 use crate::commands::Context;
 use crate::error::CliError;
@@ -186,8 +186,8 @@ pub fn replay_views(
     map_path: &Path,
     task: sim::tasks::insertion::InsertionConfig,
     target_speed_mps: f64,
-) -> Result<logs::replay::Views> {
-    logs::replay::Views::new(map, task, target_speed_mps).map_err(|e| {
+) -> Result<judge::Views> {
+    judge::Views::new(map, task, target_speed_mps).map_err(|e| {
         CliError::file(
             map_path,
             e.to_string(),
@@ -203,7 +203,7 @@ pub fn refuse_unprojectable(
     config: &sim::tasks::insertion::InsertionConfig,
     whose: &str,
 ) -> Result<()> {
-    logs::replay::check_projectable(config).map_err(|e| {
+    judge::check_projectable(config).map_err(|e| {
         CliError::new(
             format!("{whose} {e}"),
             "use a task with action_repeat = 1 (the default) for logs; frame_steps spaces the \

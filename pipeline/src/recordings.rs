@@ -8,8 +8,8 @@ use clap::Args;
 use logs::decode::read_decoded;
 use logs::project::{LogFrame, log_frames};
 use logs::source::{Log, ReadOptions};
-use logs::traffic::measure::{Measurements, RingGeometry, measure};
 use maps::{Map, RoundaboutId};
+use traffic::measure::{Measurements, RingGeometry, measure};
 
 use crate::commands::Context;
 use crate::error::CliError;
@@ -68,7 +68,7 @@ impl Measured {
         layout: &sim::roundabout::LayoutConfig,
         map_path: &Path,
     ) -> Result<Vec<sim::world::EntryFlow>> {
-        logs::traffic::simulate::recorded_flows(
+        traffic::simulate::recorded_flows(
             &self.map,
             self.geometry.roundabout,
             layout,

@@ -1,13 +1,13 @@
 //! `pipeline agent train --offline --log FILE...`: a roundabout-insertion agent learnt from
 //! recorded drivers instead of the simulator. The drivers' approaches become transitions in
-//! `logs::offline` (its docs say how: observations, actions, rewards); this command reads the
+//! `judge::offline` (its docs say how: observations, actions, rewards); this command reads the
 //! map and the logs, trains with `models::offline`, and writes an agent folder with the same
 //! files as an online agent's, plus `offline.json`.
 
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use logs::offline::{LoggedEpisodes, OFFLINE_FILE, OfflineRun, ignore_unlogged_inputs};
+use judge::offline::{LoggedEpisodes, OFFLINE_FILE, OfflineRun, ignore_unlogged_inputs};
 use models::offline::{self, OfflineRecord};
 use sim::tasks::insertion::Action;
 use sim::world::TrafficLevel;

@@ -1,10 +1,10 @@
 //! `pipeline replay eval`: reads the map, the agent and the logs, trains behaviour cloning
-//! when asked, has `logs::replay` judge the policies, and writes the report (or a shard's
+//! when asked, has `judge` judge the policies, and writes the report (or a shard's
 //! counts).
 
 use anyhow::Result;
-use logs::closed_loop::ClosedLoopConfig;
-use logs::replay::{
+use judge::closed_loop::ClosedLoopConfig;
+use judge::{
     BcExamples, Counts, Policies, REPLAY_SHARD_JSON, Report, Settings, ShardFile, default_task,
     evaluate,
 };

@@ -1,16 +1,16 @@
 //! `pipeline replay gaps`: gap acceptance at the yield lines of recordings, and the policies
 //! (the fitted critical gaps, the distance rules, always accept, behaviour cloning, an agent)
-//! scored on every offered gap. The extraction, fits and scores are `logs::gaps`'; this
+//! scored on every offered gap. The extraction, fits and scores are `judge::gaps`'; this
 //! command reads the recordings, calls it and writes `gaps.json`, `gaps.md`, `gaps.csv` and
 //! the recording.
 
 use std::fmt::Write as _;
 
 use anyhow::Result;
-use logs::gaps::policies::{GapDecision, fit, rules};
-use logs::gaps::score::{GapsReport, decide, markdown, score};
-use logs::gaps::{Features, OfferedGap, RecordingGaps, offered_gaps};
-use logs::replay::ReplayLog;
+use judge::ReplayLog;
+use judge::gaps::policies::{GapDecision, fit, rules};
+use judge::gaps::score::{GapsReport, decide, markdown, score};
+use traffic::gaps::{Features, OfferedGap, RecordingGaps, offered_gaps};
 
 use super::GapsArgs;
 use crate::commands::Context;
@@ -108,7 +108,7 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
                 &measured.map,
                 &labels,
             );
-            agent.extend(logs::gaps::agent_decisions(
+            agent.extend(judge::gaps::agent_decisions(
                 &measured.map,
                 &views,
                 &log,
@@ -140,7 +140,7 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
         approaches_offered_a_gap: offered_a_gap,
         approaches_without_a_known_gap: approaches.saturating_sub(offered_a_gap),
         crossings_without_an_approach: scored.iter().map(|r| r.without_approach).sum(),
-        approach_definition: logs::decisions::APPROACH_DEFINITION,
+        approach_definition: traffic::decisions::APPROACH_DEFINITION,
         critical_gap_s: fitted.critical_gap.median_s,
         critical_gap_ci95_s: fitted.critical_gap.median_ci95_s,
         raff_critical_gap_s: fitted.raff_s,
@@ -212,7 +212,7 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
 fn recordings_gaps(
     measured: &Measured,
     paths: &[std::path::PathBuf],
-    labels: &logs::decisions::LabelConfig,
+    labels: &traffic::decisions::LabelConfig,
 ) -> Vec<RecordingGaps> {
     paths
         .iter()

@@ -1,8 +1,8 @@
 //! `pipeline replay merge --shards`: the shards of one `replay eval --shard i/n` run added
-//! up (`logs::replay::merge_shard_dirs`) into the unsharded run's report.
+//! up (`judge::merge_shard_dirs`) into the unsharded run's report.
 
 use anyhow::Result;
-use logs::replay::merge_shard_dirs;
+use judge::merge_shard_dirs;
 
 use super::{MARKERS, MergeArgs, write_report};
 use crate::commands::Context;

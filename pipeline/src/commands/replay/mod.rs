@@ -1,6 +1,6 @@
 //! `pipeline replay eval | merge`: policies judged against what real drivers did at
 //! roundabout entries (open loop, and closed loop among the replayed traffic), and the shards
-//! of one evaluation added up. The judging is `logs::replay`'s; these commands read the
+//! of one evaluation added up. The judging is `judge`'s; these commands read the
 //! inputs, call it and write `replay.json`, `replay.md` and the recording.
 //!
 //! With `--shard i/n` only shard `i`'s share of the approaches (numbered over the logs in
@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::{Args, Subcommand};
 use datasets::shard::Shard;
-use logs::replay::{REPLAY_JSON, REPLAY_MD, REPLAY_SHARD_JSON, Report, markdown};
+use judge::{REPLAY_JSON, REPLAY_MD, REPLAY_SHARD_JSON, Report, markdown};
 
 use super::Context;
 use crate::error::CliError;

@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use logs::replay::REPLAY_MD;
+use judge::REPLAY_MD;
 use logs::simulated::PROJECTION_JSON;
 use serde_json::Value;
 

@@ -1,7 +1,7 @@
 //! `pipeline sim calibrate`: the world's drivers fitted to recordings.
 
 use anyhow::Result;
-use logs::traffic::calibrate::{calibrate, to_toml};
+use traffic::calibrate::{calibrate, to_toml};
 
 use super::{CalibrateArgs, read_measured};
 use crate::commands::Context;
@@ -30,7 +30,7 @@ pub fn run(ctx: &Context<'_>, args: &CalibrateArgs) -> Result<()> {
     })?;
     let mut calibration = calibration;
     if !args.no_refine {
-        logs::traffic::calibrate::refine(
+        traffic::calibrate::refine(
             &mut calibration,
             &measured.map,
             &measured.geometry,

@@ -1,6 +1,6 @@
 //! `pipeline sim calibrate | realism`: the traffic world fitted to recordings of real
 //! drivers at a roundabout, and compared with them metric by metric. The measuring, fitting
-//! and comparing are `logs::traffic`'s; these commands read the map and the logs, call it
+//! and comparing are `traffic`'s; these commands read the map and the logs, call it
 //! and write the calibration (TOML and JSON) or the realism report (JSON, Markdown, plots).
 
 mod calibrate;

@@ -2,11 +2,11 @@
 //! against the recordings.
 
 use anyhow::Result;
-use logs::traffic::measure::{Measurements, measure};
-use logs::traffic::realism::{METRICS, RealismReport, compare, markdown, samples};
-use logs::traffic::simulate::simulate;
 use rayon::prelude::*;
 use sim::seed::derive_seed;
+use traffic::measure::{Measurements, measure};
+use traffic::realism::{METRICS, RealismReport, compare, markdown, samples};
+use traffic::simulate::simulate;
 
 use super::{RealismArgs, read_measured};
 use crate::commands::Context;

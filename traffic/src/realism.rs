@@ -1,13 +1,13 @@
 //! The world against recordings, metric by metric (`pipeline sim realism`): each metric's
-//! distribution measured the same way on both ([`super::measure`]), compared by the
+//! distribution measured the same way on both ([`crate::measure`]), compared by the
 //! two-sample Kolmogorov–Smirnov distance and the 1-Wasserstein distance.
 
 use std::collections::BTreeMap;
 
 use serde::Serialize;
 
-use super::fit::{self, Summary};
-use super::measure::{Measurements, entry_flows_vph};
+use crate::fit::{self, Summary};
+use crate::measure::{Measurements, entry_flows_vph};
 
 /// The metrics, in report order: name, what it is, unit.
 pub const METRICS: [(&str, &str, &str); 8] = [

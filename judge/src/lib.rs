@@ -1,8 +1,8 @@
-//! Policies judged against what real drivers did at roundabout entries (`pipeline replay
-//! eval`).
+//! Policies judged against what real drivers did at roundabout entries (`pipeline replay eval`,
+//! `pipeline replay gaps`), and the drivers' approaches turned into transitions to learn from.
 //!
 //! Every vehicle's approach to a yield line of the map's roundabouts is labelled go / wait /
-//! ambiguous frame by frame from what its driver did ([`crate::decisions`]). At each labelled
+//! ambiguous frame by frame from what its driver did ([`traffic::decisions`]). At each labelled
 //! frame every policy decides from what the driver could see then: the rules from the
 //! distance to the nearest vehicle on the ring, the agent and behaviour cloning from the
 //! bird's-eye frames around the vehicle (its own recorded path, the task's frames stacked)
@@ -11,12 +11,17 @@
 //! ([`tally`]).
 //!
 //! - [`eval`] runs the policies over the approaches (open loop, and closed loop among the
-//!   replayed traffic with [`crate::closed_loop`]);
+//!   replayed traffic with [`closed_loop`]);
 //! - [`report`] holds what a run or a shard of it found, the report (`replay.json`) and its
 //!   markdown (`replay.md`), and adds the shards of one run up, byte for byte the unsharded
-//!   run's report.
+//!   run's report;
+//! - [`gaps`] scores gap-acceptance policies on every gap a driver was offered at a yield line;
+//! - [`offline`] turns the drivers' approaches into transitions to learn from.
 
+pub mod closed_loop;
 pub mod eval;
+pub mod gaps;
+pub mod offline;
 pub mod report;
 pub mod tally;
 pub mod views;
@@ -27,14 +32,14 @@ use maps::Map;
 use sim::render::BevConfig;
 use sim::tasks::insertion::InsertionConfig;
 
-use crate::decisions::{Approach, LabelConfig, approaches};
-use crate::project::LogFrame;
-use crate::traffic::measure::{Measurements, RingGeometry, measure};
+use logs::project::LogFrame;
+use traffic::decisions::{Approach, LabelConfig, approaches};
+use traffic::measure::{Measurements, RingGeometry, measure};
 
-pub use crate::decisions::nearest_circulating;
 pub use eval::{BC_AGGRESSIVENESS, BcExamples, Policies, RULE_THRESHOLDS, agent_goes, evaluate};
 pub use report::{Counts, MergeError, Report, Settings, ShardFile, markdown, merge_shard_dirs};
 pub use tally::{LoopScore, LoopTally, Score, Tally};
+pub use traffic::decisions::nearest_circulating;
 pub use views::{ClosedLoopInputs, FrameInput, Views};
 
 /// The report of a run.

@@ -25,7 +25,7 @@ use maps::Map;
 use maps::geometry::Point;
 use serde::{Deserialize, Serialize};
 
-use super::project::{LogFrame, central_speeds};
+use logs::project::{LogFrame, central_speeds};
 
 /// A driver's decision at one frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -1,7 +1,7 @@
 //! The policies that judge offered gaps, and their fits on training recordings.
 //!
 //! - **Critical gap (maximum likelihood)**: Troutbeck's estimator
-//!   ([`crate::traffic::fit::fit_critical_gap`]) on each training driver's accepted and
+//!   ([`traffic::fit::fit_critical_gap`]) on each training driver's accepted and
 //!   largest rejected gap; the rule accepts when the estimated time to the next conflicting
 //!   vehicle is at least the median critical gap, and gives as probability the share of
 //!   drivers whose critical gap is shorter (the fitted lognormal's CDF).
@@ -14,9 +14,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Features, OfferedGap, RecordingGaps};
-use crate::traffic::calibrate::gap_observations;
-use crate::traffic::fit::{CriticalGapFit, fit_critical_gap, phi};
+use traffic::calibrate::gap_observations;
+use traffic::fit::{CriticalGapFit, fit_critical_gap, phi};
+use traffic::gaps::{Features, OfferedGap, RecordingGaps};
 
 /// The distance rules' thresholds, m.
 pub const DISTANCE_RULES_M: [f64; 4] = [10.0, 15.0, 20.0, 25.0];
@@ -405,8 +405,8 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use crate::gaps::Features;
-    use crate::traffic::fit::normal_quantile;
+    use traffic::fit::normal_quantile;
+    use traffic::gaps::Features;
 
     /// Drivers with lognormal critical gaps (median `median_s`, sigma 0.25) offered gaps of
     /// 1-8 s one after another until one is at least their critical gap: the decisions a

@@ -11,8 +11,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use sim::stats::{paired_rates, percentile_interval};
 
-use super::OfferedGap;
 use super::policies::{GapDecision, GapPolicy, log_loss};
+use traffic::gaps::OfferedGap;
 
 /// Bootstrap replicates of every interval and paired test.
 pub const BOOTSTRAP: usize = 2000;
@@ -268,7 +268,7 @@ pub struct GapsReport {
     /// Vehicles that crossed a yield line of the roundabout towards it without an approach
     /// (less of their track before the line: first seen at it), counted by neither command.
     pub crossings_without_an_approach: u64,
-    /// What an approach is ([`crate::decisions::APPROACH_DEFINITION`]).
+    /// What an approach is ([`traffic::decisions::APPROACH_DEFINITION`]).
     pub approach_definition: &'static str,
     /// The median critical gap by maximum likelihood, s: fitted on the training recordings
     /// when there are any, else on the scored ones (then only a description of them).
@@ -384,7 +384,7 @@ pub fn markdown(r: &GapsReport) -> String {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::gaps::Features;
+    use traffic::gaps::Features;
 
     fn gap(recording: &str, track: u32, accepted: bool) -> OfferedGap {
         OfferedGap {

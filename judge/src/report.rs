@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::REPLAY_SHARD_JSON;
 use super::tally::{LoopScore, LoopTally, Score, Tally};
-use crate::decisions::{APPROACH_DEFINITION, LabelConfig};
+use traffic::decisions::{APPROACH_DEFINITION, LabelConfig};
 
 /// What a run evaluated, the same in every shard of it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

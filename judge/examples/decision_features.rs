@@ -11,10 +11,10 @@ use std::collections::BTreeMap;
 use std::f64::consts::TAU;
 use std::path::Path;
 
-use logs::decisions::{Decision, LabelConfig, approaches};
 use logs::project::log_frames;
 use logs::{Log, ReadOptions, read_decoded};
 use maps::geometry::Point;
+use traffic::decisions::{Decision, LabelConfig, approaches};
 
 /// Ring vehicles this far from the ring's radius count as circulating, m.
 const RING_BAND_M: f64 = 6.0;

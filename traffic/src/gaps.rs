@@ -1,9 +1,9 @@
-//! Gap acceptance at roundabout entries (`pipeline replay gaps`): the measure traffic
-//! engineers use for entry decisions.
+//! Gaps offered to drivers at roundabout entries, and what they did with them: the measure
+//! traffic engineers use for entry decisions (`pipeline replay gaps` scores policies on it).
 //!
 //! At a yield line a driver is offered a sequence of gaps in the circulating stream: the lag
 //! from its arrival to the first conflicting vehicle passing its merge point, then each gap
-//! between successive conflicting vehicles, until it enters in one ([`crate::traffic::measure`]
+//! between successive conflicting vehicles, until it enters in one ([`crate::measure`]
 //! finds them: presence 10 m before the line, passes at the entry's merge angle). Each
 //! offered gap is one decision, accept or reject, known from what the driver did.
 //!
@@ -20,26 +20,16 @@
 //! later frame ([`Features`]). The gap's true length (the time to the next pass) is kept
 //! for the fits and for reference, not given to the policies.
 //!
-//! - [`offered_gaps`] lists a recording's offered gaps with their features and decisions;
-//! - [`policies`] fits the critical gap (Troutbeck's maximum likelihood, Raff's method) and a
-//!   behaviour-cloning classifier (logistic regression) on training recordings, and holds the
-//!   rules;
-//! - [`score`] scores the policies (accuracy, balanced accuracy, log-loss, confusion matrix,
-//!   per recording, bootstrap intervals over approaches, paired tests) into `gaps.json` and
-//!   `gaps.md`.
-
-pub mod policies;
-pub mod score;
+//! [`offered_gaps`] lists a recording's offered gaps with their features and decisions; the
+//! policies fitted and scored on them are the `judge` crate's (`judge::gaps`).
 
 use maps::Map;
 use maps::geometry::{Point, project_onto_polyline};
 use serde::{Deserialize, Serialize};
 
 use crate::decisions::{LabelConfig, approaches, nearest_circulating};
-use crate::project::LogFrame;
-use crate::traffic::measure::{
-    GAP_CAP_S, Measurements, RingGeometry, Sample, Track, measure, tracks, wrap,
-};
+use crate::measure::{GAP_CAP_S, Measurements, RingGeometry, Sample, Track, measure, tracks, wrap};
+use logs::project::LogFrame;
 
 /// A vehicle nearer than this to the merge point along the ring is passing it now and
 /// ends the previous gap rather than bounding the next, m.
@@ -366,51 +356,4 @@ fn frame_at(frames: &[LogFrame], t0: u64, t: f64) -> Option<&LogFrame> {
     let at = t0 + (t.max(0.0) * 1e9).round() as u64;
     let k = frames.partition_point(|f| f.time_ns <= at);
     frames.get(k.checked_sub(1)?)
-}
-
-/// The agent's decision at each of `gaps` of one recording (`log`, the same recording's
-/// frames and approaches): it drives each approach frame after frame as in `replay eval`,
-/// and its decision at a gap is the one at the last frame at or before the gap was offered
-/// (Permitted accepts; Caution and Not permitted reject). Every gap [`offered_gaps`] finds
-/// has its driver's approach in `log` when both were found with the same labels; a gap
-/// without one (other labels) is rejected (counted by the caller as any other).
-#[cfg(feature = "policies")]
-pub fn agent_decisions(
-    map: &Map,
-    views: &crate::replay::Views,
-    log: &crate::replay::ReplayLog,
-    gaps: &[OfferedGap],
-    policy: &models::policy::QPolicy,
-    aggressiveness: f64,
-) -> Vec<policies::GapDecision> {
-    let t0 = log.frames.first().map_or(0, |f| f.time_ns);
-    let mut goes_of: std::collections::BTreeMap<u32, (Vec<u64>, Vec<bool>)> = Default::default();
-    gaps.iter()
-        .map(|g| {
-            let (times, goes) = goes_of.entry(g.track).or_insert_with(|| {
-                let Some(approach) = log.approaches.iter().find(|a| a.track == g.track) else {
-                    return (Vec::new(), Vec::new());
-                };
-                let inputs = views.inputs(map, &log.frames, approach);
-                let goes = crate::replay::agent_goes(views, &inputs, policy, aggressiveness);
-                let times = approach
-                    .frames
-                    .iter()
-                    .map(|&k| log.frames[k].time_ns)
-                    .collect();
-                (times, goes)
-            });
-            let at = t0 + (g.offered_s.max(0.0) * 1e9).round() as u64;
-            let k = times.partition_point(|&t| t <= at);
-            let accept = k
-                .checked_sub(1)
-                .and_then(|j| goes.get(j))
-                .copied()
-                .unwrap_or(false);
-            policies::GapDecision {
-                accept,
-                probability: None,
-            }
-        })
-        .collect()
 }

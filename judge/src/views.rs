@@ -10,9 +10,9 @@ use sim::tasks::insertion::{
 use sim::{Observation, ObservationSpec, SimError};
 
 use crate::closed_loop::ClosedLoopView;
-use crate::decisions::{Approach, nearest_circulating};
-use crate::noise::NoiseConfig;
-use crate::project::{LogFrame, project};
+use logs::noise::NoiseConfig;
+use logs::project::{LogFrame, project};
+use traffic::decisions::{Approach, nearest_circulating};
 
 /// What the policies that read the bird's-eye view (the agent, behaviour cloning) see;
 /// offline training (`agent train --offline`) learns from the same.
@@ -277,14 +277,14 @@ mod tests {
     /// inputs are the speeds of the frames 0.5, 1 and 2 s before and the slowest so far.
     #[test]
     fn logs_give_the_rule_and_motion_inputs_along_each_approach() {
-        use crate::convert::{ConvertConfig, interaction_to_mcap};
-        use crate::decisions::{LabelConfig, approaches};
-        use crate::decode::read_decoded;
-        use crate::interaction::read_track_file;
-        use crate::project::log_frames;
-        use crate::source::{Log, ReadOptions};
+        use logs::convert::{ConvertConfig, interaction_to_mcap};
+        use logs::decode::read_decoded;
+        use logs::interaction::read_track_file;
+        use logs::project::log_frames;
+        use logs::source::{Log, ReadOptions};
         use sim::tasks::insertion::RULE_INPUT_RANGE_M;
         use std::path::Path;
+        use traffic::decisions::{LabelConfig, approaches};
         let data = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../shared/data/trajectories/interaction");
         if !data.is_dir() {

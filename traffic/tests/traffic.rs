@@ -9,13 +9,13 @@ mod common;
 use std::sync::Arc;
 
 use common::shared_data;
-use logs::traffic::calibrate::{calibrate, refine};
-use logs::traffic::measure::{Measurements, RingGeometry, measure};
-use logs::traffic::realism::compare;
-use logs::traffic::simulate::{recorded_flows, simulate};
 use maps::{Map, RoundaboutId};
 use sim::roundabout::{LayoutConfig, RoundaboutLayout};
 use sim::world::{CriticalGap, EntryFlow, TrafficConfig, TrafficLevel};
+use traffic::calibrate::{calibrate, refine};
+use traffic::measure::{Measurements, RingGeometry, measure};
+use traffic::realism::compare;
+use traffic::simulate::{recorded_flows, simulate};
 
 /// The FT map (None without ../shared/data).
 fn ft_map() -> Option<Map> {
@@ -137,7 +137,7 @@ fn the_world_against_itself_is_as_near_as_sampling_allows() {
     let patient = known_world(&map, 6.0, 5.0);
     let c = recordings(&map, &geometry, &patient, 8, 8.0, 300);
     let other = compare(&a, &c);
-    let gap = |r: &logs::traffic::realism::RealismReport| r.metrics["accepted_gap"].ks;
+    let gap = |r: &traffic::realism::RealismReport| r.metrics["accepted_gap"].ks;
     assert!(
         gap(&other) > 3.0 * gap(&same) && gap(&other) > 0.1,
         "accepted gaps: KS {:.3} against other drivers, {:.3} against the same",

@@ -20,8 +20,8 @@ use super::report::Counts;
 use super::tally::{LoopTally, Tally, score_approach};
 use super::views::{FrameInput, Views};
 use crate::closed_loop::{ClosedLoopConfig, ClosedLoopView, Command, drive};
-use crate::decisions::nearest_circulating;
-use crate::decisions::{Approach, Decision};
+use traffic::decisions::nearest_circulating;
+use traffic::decisions::{Approach, Decision};
 
 /// The gap rules' thresholds (go when the nearest vehicle on the ring is further than this,
 /// m), then always go (no threshold).

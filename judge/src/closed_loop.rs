@@ -22,8 +22,8 @@ use sim::render::{BevRenderer, FrameStack};
 use sim::scene::Scene;
 use sim::world::{Driver, DriverConfig};
 
-use super::decisions::Approach;
-use super::project::LogFrame;
+use logs::project::LogFrame;
+use traffic::decisions::Approach;
 
 /// What the policy decides at a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -7,8 +7,8 @@ use maps::{Map, RoundaboutId};
 use sim::roundabout::{LayoutConfig, RoundaboutLayout};
 use sim::world::{EgoConfig, EntryFlow, ExitShare, TrafficConfig, World, WorldStats};
 
-use super::measure::{Measurements, RingGeometry, entry_flows_vph};
-use crate::project::LogFrame;
+use crate::measure::{Measurements, RingGeometry, entry_flows_vph};
+use logs::project::LogFrame;
 
 /// A simulated run: its frames (one per world step, times from 0 after the warm-up) and the
 /// world's counters.

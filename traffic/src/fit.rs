@@ -162,7 +162,7 @@ pub fn lognormal_quantile(mu: f64, sigma: f64, p: f64) -> f64 {
 }
 
 /// Standard normal CDF Φ(z).
-pub(crate) fn phi(z: f64) -> f64 {
+pub fn phi(z: f64) -> f64 {
     0.5 * erfc(-z / std::f64::consts::SQRT_2)
 }
 

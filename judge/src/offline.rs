@@ -2,9 +2,9 @@
 //! simulator (`pipeline agent train --offline`).
 //!
 //! Every vehicle's approach to a yield line of the map's roundabout in the logs becomes an
-//! episode ([`crate::decisions`] labels its frames): at each frame the observation the agent
+//! episode ([`traffic::decisions`] labels its frames): at each frame the observation the agent
 //! would have had there (the bird's-eye frames around the vehicle, its recorded path, its
-//! speed; [`crate::replay::Views`], which `replay eval` shows agents too), the driver's action
+//! speed; [`crate::Views`], which `replay eval` shows agents too), the driver's action
 //! (go = Permitted, wait or queued behind another car = Not Permitted; ambiguous frames start
 //! no transition) and the task's reward for it, as far as a log tells it:
 //! - per step, `reward.speed` × speed / target speed;
@@ -33,9 +33,9 @@ use models::offline::{OfflineConfig, OfflineSummary, TransitionSet};
 use serde::Serialize;
 use sim::tasks::insertion::{AGGRESSIVENESS_SCALAR, Action, LAST_ACTION_SCALARS, RewardConfig};
 
-use crate::decisions::{Approach, Decision, LabelConfig};
-use crate::project::LogFrame;
-use crate::replay::{ReplayLog, Views};
+use crate::{ReplayLog, Views};
+use logs::project::LogFrame;
+use traffic::decisions::{Approach, Decision, LabelConfig};
 
 /// The offline run's description beside the agent (`offline.json`).
 pub const OFFLINE_FILE: &str = "offline.json";

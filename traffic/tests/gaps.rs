@@ -8,12 +8,12 @@
 
 use std::path::Path;
 
-use logs::decisions::{LabelConfig, approaches};
-use logs::gaps::offered_gaps;
 use logs::project::LogFrame;
-use logs::traffic::measure::RingGeometry;
 use maps::geometry::Point;
 use sim::{Actor, ActorKind};
+use traffic::decisions::{LabelConfig, approaches};
+use traffic::gaps::offered_gaps;
+use traffic::measure::RingGeometry;
 
 const STEP_S: f64 = 0.1;
 /// The circulating vehicles' speed, m/s.
@@ -153,10 +153,7 @@ fn the_gaps_of_a_hand_built_approach_are_the_ones_built() {
     );
     // Offered the lag at 2.5 s, nothing circulates yet: the estimate is the cap.
     let f0 = &gaps[0].features;
-    assert!(
-        near(f0.eta_s, logs::traffic::measure::GAP_CAP_S, 1e-9),
-        "{f0:?}"
-    );
+    assert!(near(f0.eta_s, traffic::measure::GAP_CAP_S, 1e-9), "{f0:?}");
     assert!(
         f0.own_speed_mps > 7.0 && near(f0.own_distance_m, 10.0, 0.9),
         "{f0:?}"
@@ -191,5 +188,5 @@ fn the_gaps_of_a_hand_built_approach_are_the_ones_built() {
     ));
     // After the second pass at 14 s the third vehicle is not on the map yet.
     let f2 = &gaps[2].features;
-    assert!(near(f2.eta_s, logs::traffic::measure::GAP_CAP_S, 1e-9) && f2.rejected_before == 2);
+    assert!(near(f2.eta_s, traffic::measure::GAP_CAP_S, 1e-9) && f2.rejected_before == 2);
 }

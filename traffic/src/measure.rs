@@ -31,7 +31,7 @@ use maps::{Map, RoundaboutId};
 use serde::{Deserialize, Serialize};
 
 use crate::decisions::crosses;
-use crate::project::{LogFrame, central_speeds};
+use logs::project::{LogFrame, central_speeds};
 
 /// A driver is at its yield line once its centre is this far from it or nearer, m.
 pub const PRESENCE_M: f64 = 10.0;
@@ -212,7 +212,7 @@ pub struct Entering {
     pub follow_up_s: Option<f64>,
 }
 
-/// One car-following instant on the ring (see [`crate::traffic::fit::FollowingSample`]).
+/// One car-following instant on the ring (see [`crate::fit::FollowingSample`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Following {
     pub track: u32,

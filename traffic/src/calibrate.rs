@@ -23,8 +23,8 @@ use serde::Serialize;
 use sim::roundabout::LayoutConfig;
 use sim::world::{CapacityModel, CriticalGap, EntryFlow, Span, TrafficConfig, TrafficLevel};
 
-use super::fit::{self, CriticalGapFit, FollowingSample, IdmFit, MeanFit};
-use super::measure::Measurements;
+use crate::fit::{self, CriticalGapFit, FollowingSample, IdmFit, MeanFit};
+use crate::measure::Measurements;
 
 /// Fewest entering drivers with a measured gap a calibration accepts.
 pub const MIN_GAP_DRIVERS: usize = 30;
@@ -249,7 +249,7 @@ pub fn calibrate(
             follow_up_headway: follow_up,
             vehicle_length_m: length,
             vehicle_width_m: width,
-            entry_flows_vph: super::measure::entry_flows_vph(measured),
+            entry_flows_vph: crate::measure::entry_flows_vph(measured),
             flows,
             refinement: None,
         },
@@ -257,7 +257,7 @@ pub fn calibrate(
 }
 
 /// Each entering driver's accepted gap and largest rejected gap, over every recording.
-pub(crate) fn gap_observations(measured: &[Measurements]) -> Vec<fit::GapObservation> {
+pub fn gap_observations(measured: &[Measurements]) -> Vec<fit::GapObservation> {
     measured
         .iter()
         .flat_map(|m| &m.entering)
@@ -457,7 +457,7 @@ pub struct Refinement {
 pub fn refine(
     calibration: &mut Calibration,
     map: &maps::Map,
-    geometry: &super::measure::RingGeometry,
+    geometry: &crate::measure::RingGeometry,
     measured: &[Measurements],
     seed: u64,
     mut step: impl FnMut(&str),
@@ -470,7 +470,7 @@ pub fn refine(
                 .par_iter()
                 .enumerate()
                 .map(|(k, m)| {
-                    let s = super::simulate::simulate(
+                    let s = crate::simulate::simulate(
                         map,
                         geometry.roundabout,
                         traffic,
@@ -479,7 +479,7 @@ pub fn refine(
                         REFINE_WARM_UP_S,
                         sim::seed::derive_seed(seed, 0x5245_4649, k as u64),
                     )?;
-                    Ok(super::measure::measure(geometry, &s.frames))
+                    Ok(crate::measure::measure(geometry, &s.frames))
                 })
                 .collect()
         };

@@ -7,8 +7,8 @@ use serde::{Deserialize, Serialize};
 use sim::stats::{PairedDifference, bootstrap_mean, paired_bootstrap};
 
 use crate::closed_loop::{ClosedLoopEpisode, ClosedLoopOutcome};
-use crate::decisions::{Approach, Decision};
-use crate::project::LogFrame;
+use logs::project::LogFrame;
+use traffic::decisions::{Approach, Decision};
 
 /// What one policy did in closed loop, as counts and per-episode figures (in approach
 /// order, so that shards put one after the other give the unsharded means to the bit).
