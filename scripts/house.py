@@ -10,7 +10,7 @@ An import is a path a file names that resolves to another file of the same crate
 `super::x`, `self::y` or the same paths written inline. A name re-exported by a module (`pub use
 child::Item`) resolves to the file that defines it, so a facade module that only re-exports its
 children imports nothing; `mod child;` declarations are not imports. Test code is left out: `tests/`,
-`benches/`, `examples/` and `#[cfg(test)] mod tests { ... }` blocks inside a file.
+`benches/`, `examples/` and `#[cfg(test)]` (or `#[cfg(all(test, ...))]`) modules inside a file.
 """
 
 import argparse
@@ -31,7 +31,8 @@ def strip(text):
     text = re.sub(r'"(?:\\.|[^"\\])*"', '""', text)
     text = re.sub(r"'(?:\\.|[^'\\])'", "' '", text)
     out, i = [], 0
-    for m in re.finditer(r"#\[cfg\(test\)\]\s*(?:pub(?:\([a-z]+\))?\s+)?mod\s+" + IDENT + r"\s*\{", text):
+    test_mod = r"#\[cfg\((?:all\()?test\b[^\]]*\]\s*(?:#\[[^\]]*\]\s*)*(?:pub(?:\([a-z]+\))?\s+)?mod\s+"
+    for m in re.finditer(test_mod + IDENT + r"\s*\{", text):
         if m.start() < i:
             continue
         out.append(text[i : m.start()])

@@ -29,7 +29,7 @@ pub struct Config {
     /// `[agent.dqn]` (hyper-parameters), `[agent.task]` (insertion's settings) and
     /// `[agent.roundabout_driving]`.
     #[serde(default)]
-    pub agent: crate::commands::agent::AgentConfig,
+    pub agent: crate::tasks::AgentConfig,
     /// `[run]`: the maps and stage sizes of `pipeline run`.
     #[serde(default)]
     pub run: crate::commands::run::settings::RunConfig,
@@ -304,7 +304,7 @@ mod tests {
             "no recorded flows"
         );
         // A profile's agent recipe replaces [agent]; the world is put back.
-        config.agent = crate::commands::agent::AgentConfig::default();
+        config.agent = crate::tasks::AgentConfig::default();
         config.apply_world();
         assert_eq!(config.agent.task.traffic.drivers, traffic.drivers);
         Ok(())

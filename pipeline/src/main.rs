@@ -29,7 +29,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let verbosity = cli.verbosity();
+    let verbosity = cli.global.verbosity();
     pipeline::ui::init_logging(verbosity);
     match pipeline::run(cli) {
         Ok(()) => ExitCode::SUCCESS,

@@ -42,7 +42,7 @@ use rerun::{
     RecordingStreamResult, TimelineName,
 };
 
-use crate::cli::RerunMode;
+use crate::args::RerunMode;
 use crate::error::CliError;
 
 /// File name of the recording inside an output folder.

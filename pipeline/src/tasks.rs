@@ -2,18 +2,61 @@
 //! from the `--config` file, and its setup from a map path (the map loaded or imported, the
 //! camera view's segmenter loaded), with one-line errors.
 
+use std::any::Any;
 use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::Result;
 use maps::Map;
+use serde::{Deserialize, Serialize};
 use sim::SimError;
 use sim::observer::{CameraViewConfig, SceneObserver};
 use sim::tasks::Task;
+use sim::tasks::insertion::InsertionConfig;
 
-use crate::commands::agent::AgentConfig;
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
+
+/// `[agent]` of the `--config` file: the training settings, and one table per task of the
+/// registry (its [`Task::Config`]).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AgentConfig {
+    pub dqn: models::dqn::DqnConfig,
+    /// Roundabout insertion.
+    pub task: InsertionConfig,
+    /// Route following.
+    pub route: sim::tasks::route::RouteConfig,
+    /// `[agent.roundabout_driving]`: the roundabout-driving task's settings.
+    pub roundabout_driving: sim::tasks::RingDrivingConfig,
+    /// Obstacle avoidance.
+    pub obstacle: sim::tasks::obstacle::ObstacleConfig,
+    /// `agent train --offline` (the network and optimiser settings come from `[agent.dqn]`).
+    pub offline: models::offline::OfflineConfig,
+    /// `[agent.validation]`: choosing the agent among the run's checkpoints.
+    pub validation: models::validation::ValidationConfig,
+}
+
+impl AgentConfig {
+    /// The tables of the tasks' settings.
+    fn task_tables(&self) -> [&dyn Any; 4] {
+        [
+            &self.task,
+            &self.route,
+            &self.roundabout_driving,
+            &self.obstacle,
+        ]
+    }
+
+    /// The settings table of task `T` (the table of its config type).
+    pub fn task_table<T: Task>(&self) -> T::Config {
+        self.task_tables()
+            .into_iter()
+            .find_map(|table| table.downcast_ref::<T::Config>())
+            .cloned()
+            .unwrap_or_default()
+    }
+}
 
 /// The `[agent.<table>]` settings of task `T` in the config file, the camera table's
 /// segmenter folder made absolute (when it exists), so the agent's task.json still finds it
@@ -86,4 +129,30 @@ pub fn camera_observer(map: &Map, camera: &CameraViewConfig) -> Result<Arc<dyn S
         )
     })?;
     Ok(Arc::new(observer))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sim::tasks::{TaskId, TaskVisitor};
+
+    struct HasTable<'a>(&'a AgentConfig);
+
+    impl TaskVisitor for HasTable<'_> {
+        type Output = bool;
+        fn visit<T: Task>(self) -> bool {
+            self.0
+                .task_tables()
+                .into_iter()
+                .any(|table| table.is::<T::Config>())
+        }
+    }
+
+    #[test]
+    fn every_task_has_its_settings_table() {
+        let config = AgentConfig::default();
+        for id in TaskId::ALL {
+            assert!(id.visit(HasTable(&config)), "{id:?}");
+        }
+    }
 }

@@ -10,6 +10,7 @@ pub mod loss;
 pub mod metrics;
 pub mod model;
 pub mod recalibrate;
+pub mod recipe;
 pub mod shipped;
 pub mod synthetic;
 pub mod train;

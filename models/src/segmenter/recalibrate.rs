@@ -18,7 +18,7 @@ use super::data::{Source, epoch_draws, load_batch};
 use super::error::Result;
 use super::infer::normalise;
 use super::model::PspNet;
-use super::train::TrainingConfig;
+use super::recipe::TrainingConfig;
 
 /// Seed stage of the recalibration batches' draws (apart from the training draws, so
 /// recalibrating changes no training step).

@@ -139,7 +139,7 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
 
     let options = EvalOptions {
         episodes: args.episodes,
-        seed: ctx.cli.seed,
+        seed: ctx.global.seed,
         lockstep: AGENT_LOCKSTEP,
     };
     let baselines = !args.no_baselines;
@@ -152,7 +152,7 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
         trained_on: task.map.clone(),
         roundabouts: T::roundabouts(&setup),
         episodes: args.episodes,
-        seed: ctx.cli.seed,
+        seed: ctx.global.seed,
     };
     let picture = eval_png(&evaluation, task.task.name())?;
     let report = T::eval_report(&header, &evaluation).map_err(|e| {
@@ -165,7 +165,13 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
     write_outputs(ctx, args, &out, (&report, &picture), progress, |rec| {
         crate::recording::log_map(rec, T::map(&setup))?;
         let make_env = || T::env(&setup, &recorded);
-        record_episodes(rec, make_env, &policy, args.record_episodes, ctx.cli.seed)
+        record_episodes(
+            rec,
+            make_env,
+            &policy,
+            args.record_episodes,
+            ctx.global.seed,
+        )
     })
 }
 

@@ -14,14 +14,13 @@ mod eval;
 mod offline;
 mod train;
 
-use std::any::Any;
 use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Subcommand, ValueEnum};
-use serde::{Deserialize, Serialize};
-use sim::tasks::{InsertionConfig, Task, TaskId};
+
+use sim::tasks::TaskId;
 use sim::world::TrafficLevel;
 
 use super::Context;
@@ -195,69 +194,4 @@ pub struct EvalArgs {
     pub roundabout: Option<u32>,
 }
 
-/// `[agent]` of the `--config` file: the training settings, and one table per task of the
-/// registry (its [`Task::Config`]).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct AgentConfig {
-    pub dqn: models::dqn::DqnConfig,
-    /// Roundabout insertion.
-    pub task: InsertionConfig,
-    /// Route following.
-    pub route: sim::tasks::route::RouteConfig,
-    /// `[agent.roundabout_driving]`: the roundabout-driving task's settings.
-    pub roundabout_driving: sim::tasks::RingDrivingConfig,
-    /// Obstacle avoidance.
-    pub obstacle: sim::tasks::obstacle::ObstacleConfig,
-    /// `agent train --offline` (the network and optimiser settings come from `[agent.dqn]`).
-    pub offline: models::offline::OfflineConfig,
-    /// `[agent.validation]`: choosing the agent among the run's checkpoints.
-    pub validation: models::validation::ValidationConfig,
-}
-
-impl AgentConfig {
-    /// The tables of the tasks' settings.
-    fn task_tables(&self) -> [&dyn Any; 4] {
-        [
-            &self.task,
-            &self.route,
-            &self.roundabout_driving,
-            &self.obstacle,
-        ]
-    }
-
-    /// The settings table of task `T` (the table of its config type).
-    pub fn task_table<T: Task>(&self) -> T::Config {
-        self.task_tables()
-            .into_iter()
-            .find_map(|table| table.downcast_ref::<T::Config>())
-            .cloned()
-            .unwrap_or_default()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use sim::tasks::TaskVisitor;
-
-    struct HasTable<'a>(&'a AgentConfig);
-
-    impl TaskVisitor for HasTable<'_> {
-        type Output = bool;
-        fn visit<T: Task>(self) -> bool {
-            self.0
-                .task_tables()
-                .into_iter()
-                .any(|table| table.is::<T::Config>())
-        }
-    }
-
-    #[test]
-    fn every_task_has_its_settings_table() {
-        let config = AgentConfig::default();
-        for id in TaskId::ALL {
-            assert!(id.visit(HasTable(&config)), "{id:?}");
-        }
-    }
-}
+pub use crate::tasks::AgentConfig;

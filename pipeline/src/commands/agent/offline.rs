@@ -118,7 +118,7 @@ pub fn train(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
         &set,
         &dqn,
         &config,
-        ctx.cli.seed,
+        ctx.global.seed,
         &ctx.device()?,
         &mut |record: &OfflineRecord| {
             if let Some(rec) = recording.stream()

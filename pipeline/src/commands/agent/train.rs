@@ -91,13 +91,13 @@ fn train_task<T: Task>(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
             ctx.config.agent.dqn.clone(),
             crate::tasks::config::<T>(&ctx.config.agent),
             ctx.config.agent.validation,
-            ctx.cli.seed,
+            ctx.global.seed,
         ),
     };
-    if resume.is_some() && seed != ctx.cli.seed {
+    if resume.is_some() && seed != ctx.global.seed {
         ctx.ui.warn(&format!(
             "resuming with the checkpoint's seed {seed} (--seed {} is ignored)",
-            ctx.cli.seed
+            ctx.global.seed
         ));
     }
     if let Some(steps) = args.steps {
@@ -436,7 +436,7 @@ fn check_warmup(dqn: &DqnConfig, first_step: u64) -> Result<()> {
 
 fn config_error(ctx: &Context<'_>, e: ModelError) -> anyhow::Error {
     let file = ctx
-        .cli
+        .global
         .config
         .clone()
         .unwrap_or_else(|| PathBuf::from("--config"));

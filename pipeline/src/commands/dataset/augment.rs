@@ -110,7 +110,7 @@ pub fn run(ctx: &Context<'_>, args: &AugmentArgs) -> Result<()> {
         config,
         copies: args.copies,
         include_originals: args.include_originals,
-        seed: ctx.cli.seed,
+        seed: ctx.global.seed,
         on_error: args.output.on_error.into(),
         shard: args.shard,
     };

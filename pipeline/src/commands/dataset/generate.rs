@@ -136,7 +136,7 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
     };
 
     progress.step("building the scene");
-    let generator = Generator::new(&map, config.clone(), ctx.cli.seed).map_err(|e| {
+    let generator = Generator::new(&map, config.clone(), ctx.global.seed).map_err(|e| {
         CliError::file(
             &map_shown,
             e.to_string(),
@@ -221,12 +221,12 @@ pub fn run(ctx: &Context<'_>, args: &GenerateArgs) -> Result<()> {
                 datasets::shard::SHARD_KEY: shard,
             }),
         },
-        ctx.cli.seed,
+        ctx.global.seed,
     );
     write_dataset_files(dir.path(), &card, &items)
         .map_err(|e| CliError::new(e.to_string(), "check free disk space and permissions"))?;
 
-    if ctx.cli.rerun != crate::cli::RerunMode::Off {
+    if ctx.global.rerun != crate::args::RerunMode::Off {
         let rec = ctx.open_recording(Some(dir.path()))?;
         if let Some(stream) = rec.stream() {
             recording::log_class_context(stream)?;

@@ -87,14 +87,20 @@ pub fn run(ctx: &Context<'_>, args: &MergeArgs) -> Result<()> {
         )
         .into());
     }
-    let (items, card) =
-        datasets::merge::merge(&name, &refs, &weights, args.total, ctx.cli.seed, dir.path())
-            .map_err(|e| {
-                CliError::new(
-                    e.to_string(),
-                    "check the inputs with `pipeline dataset check`",
-                )
-            })?;
+    let (items, card) = datasets::merge::merge(
+        &name,
+        &refs,
+        &weights,
+        args.total,
+        ctx.global.seed,
+        dir.path(),
+    )
+    .map_err(|e| {
+        CliError::new(
+            e.to_string(),
+            "check the inputs with `pipeline dataset check`",
+        )
+    })?;
     let out = dir.commit()?;
     let counts = card.config.get("counts").cloned().unwrap_or_default();
     ctx.ui.result(&format!(

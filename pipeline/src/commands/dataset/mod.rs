@@ -86,7 +86,7 @@ impl DatasetOutputArgs {
     }
 }
 
-pub use crate::cli::OnErrorArg;
+pub use crate::args::OnErrorArg;
 
 /// The last part of a folder path, for default dataset names.
 pub fn folder_name(path: &std::path::Path) -> String {

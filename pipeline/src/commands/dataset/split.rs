@@ -92,7 +92,7 @@ pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
             )
         })?
     } else {
-        split_items(&mut dataset.items, &ratios, ctx.cli.seed, group_by)
+        split_items(&mut dataset.items, &ratios, ctx.global.seed, group_by)
     };
     let manifest = args.dataset.join(MANIFEST_FILE);
     let text = manifest_text(&manifest, &dataset.items)?;
@@ -107,7 +107,7 @@ pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
         serde_json::json!({
             "ratios": ratios,
             "group_by": group_by,
-            "seed": ctx.cli.seed,
+            "seed": ctx.global.seed,
             "counts": counts,
         })
     };

@@ -163,7 +163,7 @@ pub fn run(ctx: &Context<'_>, args: &ProjectArgs) -> Result<()> {
         size_sigma_m: args.size_noise,
         heading_sigma_deg: args.heading_noise,
         path_sigma_m: args.path_noise,
-        seed: ctx.cli.seed,
+        seed: ctx.global.seed,
     };
     let (figures, layers) = project_shard(&map, &renderer, &frames, ego, &noise, args.shard);
     let seconds = start.elapsed().as_secs_f64();

@@ -11,8 +11,9 @@ use maps::summary::MapSummary;
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 
+use super::args::ImportArgs;
 use super::options::resolve_import_options;
-use crate::cli::{ImportArgs, RerunMode};
+use crate::args::RerunMode;
 use crate::commands::Context;
 use crate::error::{CliError, FileRole, map_error};
 use crate::output::{AtomicDir, Markers};
@@ -129,7 +130,7 @@ pub fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
     let prepare_outputs = || -> Result<_> {
         let hashed = sha256_file(input)?;
         let dir = AtomicDir::create(&out, IMPORT_MARKERS)?;
-        let rec = match ctx.cli.rerun {
+        let rec = match ctx.global.rerun {
             RerunMode::Off => None,
             _ => Some(ctx.open_recording(Some(dir.path()))?),
         };
@@ -163,7 +164,7 @@ pub fn import(ctx: &Context<'_>, args: &ImportArgs) -> Result<()> {
     let record = ImportRecord {
         options,
         profile_source: &resolved.profile_source,
-        seed: ctx.cli.seed,
+        seed: ctx.global.seed,
         pipeline_version: env!("CARGO_PKG_VERSION"),
         map_format_version: maps::model::MAP_FORMAT_VERSION,
     };

@@ -8,7 +8,7 @@ use maps::io::MapFileForm;
 use maps::model::RoundaboutKind;
 use maps::summary::MapSummary;
 
-use crate::cli::InfoArgs;
+use super::args::InfoArgs;
 use crate::commands::Context;
 use crate::inputs::load_map;
 use crate::ui::plural;

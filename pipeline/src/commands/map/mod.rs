@@ -1,5 +1,6 @@
 //! `pipeline map import | info | route`.
 
+pub mod args;
 mod import;
 mod info;
 mod options;
@@ -8,7 +9,7 @@ mod route;
 use anyhow::Result;
 
 use super::Context;
-use crate::cli::MapCommand;
+use args::MapCommand;
 
 pub fn run(ctx: &Context<'_>, command: &MapCommand) -> Result<()> {
     match command {

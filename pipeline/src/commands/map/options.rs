@@ -8,7 +8,7 @@ use maps::build::UTurns;
 use maps::profile::RoadProfile;
 use maps::{DrivingSide, ImportOptions};
 
-use crate::cli::{DrivingSideArg, ImportArgs, UTurnsArg};
+use super::args::{DrivingSideArg, ImportArgs, UTurnsArg};
 use crate::clip::{parse_bbox, parse_lat_lon, read_polygon_file};
 use crate::commands::Context;
 use crate::error::CliError;
@@ -24,7 +24,7 @@ pub struct ResolvedImport {
 /// Merges `map import`'s options with `[map.import]` of the config file.
 pub fn resolve_import_options(ctx: &Context<'_>, args: &ImportArgs) -> Result<ResolvedImport> {
     let cfg = &ctx.config.map.import;
-    let config_file = || ctx.cli.config.clone().unwrap_or_default();
+    let config_file = || ctx.global.config.clone().unwrap_or_default();
     let bad_option = |what: &str, msg: String| {
         CliError::new(format!("{what}: {msg}"), "see `pipeline map import --help`")
     };
@@ -162,8 +162,8 @@ fn load_profile(spec: &str, path: &Path) -> std::result::Result<(RoadProfile, St
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cli::MapCommand;
     use crate::cli::{Cli, Group};
+    use crate::commands::map::args::MapCommand;
     use crate::config::Config;
     use crate::ui::{Ui, Verbosity};
     use clap::Parser;
@@ -196,10 +196,11 @@ mod tests {
             "everywhere",
         ])?;
         let ctx = Context {
-            cli: &cli,
+            global: &cli.global,
             config: &config,
             ui: &ui,
             recording: None,
+            run_argv: crate::run_argv,
         };
         let r = resolve_import_options(&ctx, import_args(&cli))?;
         assert_eq!(r.options.profile.name, "passenger");
@@ -221,10 +222,11 @@ mod tests {
         ])?;
         let defaults = Config::default();
         let ctx = Context {
-            cli: &cli,
+            global: &cli.global,
             config: &defaults,
             ui: &ui,
             recording: None,
+            run_argv: crate::run_argv,
         };
         let r = resolve_import_options(&ctx, import_args(&cli))?;
         assert_eq!(r.options.profile.name, "car");
@@ -242,10 +244,11 @@ mod tests {
             "bicycle",
         ])?;
         let ctx = Context {
-            cli: &cli,
+            global: &cli.global,
             config: &defaults,
             ui: &ui,
             recording: None,
+            run_argv: crate::run_argv,
         };
         assert!(resolve_import_options(&ctx, import_args(&cli)).is_err());
         Ok(())

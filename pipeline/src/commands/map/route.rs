@@ -4,7 +4,8 @@ use anyhow::{Context as _, Result};
 use maps::Map;
 use maps::geometry::Point;
 
-use crate::cli::{RerunMode, RouteArgs};
+use super::args::RouteArgs;
+use crate::args::RerunMode;
 use crate::clip::{parse_lat_lon, parse_pair};
 use crate::commands::Context;
 use crate::error::{CliError, FileRole, map_error};
@@ -79,7 +80,7 @@ pub fn route(ctx: &Context<'_>, args: &RouteArgs) -> Result<()> {
         .route(from, to)
         .map_err(|e| map_error(&file, e, FileRole::MapFile))?;
 
-    if matches!(ctx.cli.rerun, RerunMode::Spawn | RerunMode::Connect(_)) {
+    if matches!(ctx.global.rerun, RerunMode::Spawn | RerunMode::Connect(_)) {
         let rec = ctx.open_recording(None)?;
         if let Some(stream) = rec.stream() {
             recording::log_map(stream, &map)?;

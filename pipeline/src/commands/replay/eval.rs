@@ -49,12 +49,14 @@ pub fn run(ctx: &Context<'_>, args: &EvalArgs) -> Result<()> {
             "behaviour cloning: training on {} frames",
             examples.len()
         ));
-        let trained = examples.train(&views, ctx.cli.seed, &device).map_err(|e| {
-            CliError::new(
-                format!("behaviour cloning: {e}"),
-                "give --train-log logs with approaches to the map's roundabout",
-            )
-        })?;
+        let trained = examples
+            .train(&views, ctx.global.seed, &device)
+            .map_err(|e| {
+                CliError::new(
+                    format!("behaviour cloning: {e}"),
+                    "give --train-log logs with approaches to the map's roundabout",
+                )
+            })?;
         Some(trained)
     };
 

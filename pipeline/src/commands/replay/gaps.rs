@@ -76,7 +76,7 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
     // The fits: on the training recordings, else (as a description only) the scored ones.
     progress.step("fitting the critical gaps");
     let fit_on = if train.is_empty() { scored } else { train };
-    let fitted = fit(fit_on, ctx.cli.seed).map_err(|e| {
+    let fitted = fit(fit_on, ctx.global.seed).map_err(|e| {
         CliError::new(
             format!("cannot fit the critical gap: {e}"),
             "give more recordings (--train-log, repeated)",
@@ -124,7 +124,7 @@ pub fn run(ctx: &Context<'_>, args: &GapsArgs) -> Result<()> {
     }
 
     progress.step("scoring");
-    let scores = score(&gaps, &decisions, ctx.cli.seed);
+    let scores = score(&gaps, &decisions, ctx.global.seed);
     // The approaches offered a gap (its drivers), of all the approaches found.
     let offered_a_gap = gaps
         .iter()

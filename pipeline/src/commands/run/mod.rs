@@ -123,7 +123,7 @@ pub fn run(ctx: &Context<'_>, args: &RunArgs) -> Result<()> {
 
     let again = invocation(ctx, args);
     let mut manifest = Manifest::load(&run_dir)?;
-    let recording = Recording::open(&ctx.cli.rerun, Some(&run_dir))?;
+    let recording = Recording::open(&ctx.global.rerun, Some(&run_dir))?;
     let mut outcomes: BTreeMap<StageName, StageOutcome> = BTreeMap::new();
     let started = Instant::now();
     for stage in StageName::ALL {
@@ -211,10 +211,10 @@ fn invocation(ctx: &Context<'_>, args: &RunArgs) -> String {
         }
     };
     let mut line = String::from("pipeline");
-    if let Some(config) = &ctx.cli.config {
+    if let Some(config) = &ctx.global.config {
         line.push_str(&format!(" --config {}", quoted(config)));
     }
-    if let Some(dir) = &ctx.cli.run_dir {
+    if let Some(dir) = &ctx.global.run_dir {
         line.push_str(&format!(" --run-dir {}", quoted(dir)));
     }
     line.push_str(" run");

@@ -8,15 +8,24 @@ use std::sync::Arc;
 use anyhow::{Context as _, Result};
 use logs::simulated::{PROJECTION_JSON, SimulatedLogs, record_and_project as simulate};
 
-use super::stage_env::StageEnv;
 use super::stages::ROUNDABOUT_MAP;
 use crate::output::AtomicDir;
 use crate::recording::{log_actors, log_layers};
 
 const MARKERS: crate::output::Markers = &[PROJECTION_JSON];
 
-pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
-    let (map, _, _) = crate::inputs::load_map(&env.run_dir.join(ROUNDABOUT_MAP))?;
+/// The `logs` stage: `seconds` of simulated traffic with `task`'s settings (on the run's
+/// roundabout map in `run_dir`) written as MCAP logs to `out` and projected back, the first
+/// drive logged to `recording`.
+pub fn record_and_project(
+    run_dir: &Path,
+    task: sim::tasks::insertion::InsertionConfig,
+    seconds: f64,
+    seed: u64,
+    recording: Option<&crate::recording::Stream>,
+    out: &Path,
+) -> Result<()> {
+    let (map, _, _) = crate::inputs::load_map(&run_dir.join(ROUNDABOUT_MAP))?;
     let dir = AtomicDir::create(out, MARKERS)?;
     let SimulatedLogs {
         report,
@@ -25,9 +34,9 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
     } = simulate(
         Arc::new(map),
         ROUNDABOUT_MAP,
-        env.config()?.agent.task,
-        env.profile.logs.seconds,
-        env.ctx.cli.seed,
+        task,
+        seconds,
+        seed,
         dir.path(),
     )
     .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -37,7 +46,7 @@ pub fn record_and_project(env: &StageEnv<'_>, out: &Path) -> Result<()> {
         .with_context(|| format!("{}: cannot write {PROJECTION_JSON}", out.display()))?;
 
     // The first drive as read back from its log, in the run's recording.
-    if let Some(rec) = env.recording {
+    if let Some(rec) = recording {
         let layer_names: Vec<&str> = bev.layers.iter().map(|l| l.name()).collect();
         for frame in &first_drive {
             rec.set_time_sequence("step", frame.step as i64);

@@ -5,14 +5,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use clap::Parser;
 
 use super::settings::ProfileSettings;
 use super::stages::{
     AGENT_EVAL, AGENT_MODEL, AUGMENTED, CAMPUS_MAP, GENERATED, REPLAY, ROUNDABOUT_MAP,
     SEGMENTER_EVAL, SEGMENTER_MODEL, SIMULATED_LOG, StageName,
 };
-use crate::cli::{Cli, RerunMode};
+use crate::args::RerunMode;
 use crate::commands::Context;
 use crate::config::Config;
 use crate::recording::Stream;
@@ -72,7 +71,7 @@ impl StageEnv<'_> {
     /// As [`command`](Self::command), logging under `sub` within the stage's entity path
     /// (when a stage runs the same command twice, as `maps` does).
     fn command_under(&self, sub: Option<&str>, args: &[String]) -> Result<()> {
-        let cli = self.ctx.cli;
+        let cli = self.ctx.global;
         let mut argv: Vec<String> = vec!["pipeline".into(), "--seed".into(), cli.seed.to_string()];
         argv.push("--rerun".into());
         argv.push(match (&cli.rerun, self.recording) {
@@ -89,24 +88,17 @@ impl StageEnv<'_> {
             Verbosity::Normal => {}
         }
         argv.extend(args.iter().cloned());
-        let child = Cli::try_parse_from(&argv).map_err(|e| {
-            anyhow::anyhow!(
-                "internal error: stage command `{}` did not parse: {e}",
-                argv.join(" ")
-            )
-        })?;
         let config = self.config()?;
         let recording = match (self.recording, sub) {
             (Some(stream), Some(sub)) => Some(stream.under(sub)),
             (stream, _) => stream.cloned(),
         };
-        let child_ctx = Context {
-            cli: &child,
+        let stage_ctx = Context {
             config: &config,
-            ui: self.ctx.ui,
             recording: recording.as_ref(),
+            ..*self.ctx
         };
-        crate::dispatch(&child_ctx)
+        (self.ctx.run_argv)(&stage_ctx, &argv)
     }
 
     /// Runs the stage; its output folders do not exist when it starts.
@@ -234,9 +226,14 @@ impl StageEnv<'_> {
                     self.path(AGENT_EVAL),
                 ])
             }
-            StageName::Logs => {
-                super::simlog::record_and_project(self, &self.run_dir.join(SIMULATED_LOG))
-            }
+            StageName::Logs => super::simlog::record_and_project(
+                self.run_dir,
+                self.config()?.agent.task,
+                p.logs.seconds,
+                self.ctx.global.seed,
+                self.recording,
+                &self.run_dir.join(SIMULATED_LOG),
+            ),
             StageName::Replay => {
                 let mut argv = args!["replay", "eval"].to_vec();
                 for log in super::simlog::logs_in(&self.run_dir.join(SIMULATED_LOG))? {

@@ -13,7 +13,7 @@ impl StageEnv<'_> {
     /// The settings that shape this stage's outputs (part of its key).
     pub fn settings(&self, stage: StageName) -> Result<serde_json::Value> {
         let p = self.profile;
-        let seed = self.ctx.cli.seed;
+        let seed = self.ctx.global.seed;
         let version = env!("CARGO_PKG_VERSION");
         Ok(match stage {
             StageName::Maps => serde_json::json!({

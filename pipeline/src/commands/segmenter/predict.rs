@@ -9,7 +9,7 @@ use datasets::image_io::{encode_label_png, encode_rgb_png, overlay_label, read_r
 use models::segmenter::infer::predict_label;
 
 use super::{Context, ModelArgs, inference, with_threads};
-use crate::cli::OnErrorArg;
+use crate::args::OnErrorArg;
 use crate::error::CliError;
 use crate::output::{AtomicDir, Markers, write_file_atomic};
 use crate::ui::plural;

@@ -217,7 +217,7 @@ fn prepare_run_dir(out: &Path, resume: bool) -> Result<()> {
 
 pub fn run(ctx: &Context<'_>, args: &TrainArgs) -> Result<()> {
     let out = ctx.output_path(&args.out);
-    let config = args.training_config(ctx.cli.seed, &out)?;
+    let config = args.training_config(ctx.global.seed, &out)?;
     let train_sources = open_sources(&args.data, Split::Train)?;
     let val_sources = if args.val.is_empty() {
         open_sources(&args.data, Split::Val)?

@@ -20,7 +20,7 @@ pub fn run(ctx: &Context<'_>, args: &CalibrateArgs) -> Result<()> {
         measured.geometry.roundabout.0,
         measured.geometry.radius_m,
         flows,
-        ctx.cli.seed,
+        ctx.global.seed,
     )
     .map_err(|e| {
         CliError::new(
@@ -35,7 +35,7 @@ pub fn run(ctx: &Context<'_>, args: &CalibrateArgs) -> Result<()> {
             &measured.map,
             &measured.geometry,
             &measured.measured,
-            ctx.cli.seed,
+            ctx.global.seed,
             |s| progress.step(s),
         )
         .map_err(|e| {

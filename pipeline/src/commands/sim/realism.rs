@@ -53,7 +53,7 @@ pub fn run(ctx: &Context<'_>, args: &RealismArgs) -> Result<()> {
         .par_iter()
         .enumerate()
         .map(|(k, m)| {
-            let seed = derive_seed(ctx.cli.seed, REALISM_STAGE, k as u64);
+            let seed = derive_seed(ctx.global.seed, REALISM_STAGE, k as u64);
             let run = simulate(
                 &measured.map,
                 measured.geometry.roundabout,
