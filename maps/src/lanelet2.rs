@@ -19,7 +19,6 @@
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BTreeSet, BinaryHeap, VecDeque};
 
-use crate::build::{Clip, ClipRegion, ImportOptions};
 use crate::error::MapError;
 use crate::geometry::{
     Point, convex_hull, direction_at, point_at, polyline_length, project_onto_polyline,
@@ -33,6 +32,7 @@ use crate::model::{
     RoadSource, Roundabout, RoundaboutArm, RoundaboutId, RoundaboutKind, RoundaboutPriority,
     RoundaboutSource, StopKind, StopLine, StopLineId, StopLineSource, Turn,
 };
+use crate::options::{Clip, ClipRegion, ImportOptions};
 use crate::osm::{MemberKind, OsmData, OsmRelation, Tags};
 use crate::projection::{LatLon, Projection, Projector};
 

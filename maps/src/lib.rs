@@ -18,6 +18,7 @@ pub mod invariants;
 pub mod io;
 pub mod lanelet2;
 pub mod model;
+pub mod options;
 pub mod osm;
 pub mod preview;
 pub mod profile;

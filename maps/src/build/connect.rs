@@ -10,9 +10,9 @@ use crate::model::{
 };
 use crate::osm::MemberKind;
 
-use super::UTurns;
 use super::select::Builder;
 use super::shape::lane_tip;
+use crate::options::UTurns;
 
 /// Heading changes below this count as going straight on.
 const STRAIGHT_DEG: f64 = 35.0;

@@ -22,7 +22,7 @@ use crate::osm::{OsmData, OsmNode, OsmWay, Tags};
 use crate::projection::Projection;
 use crate::tags;
 
-use super::ImportOptions;
+use crate::options::ImportOptions;
 
 /// Radius of the circle driven round a mini-roundabout node (the centre line of its one
 /// lane), m: a small island of 2-4 m and a lane round it; at least 2 m more than half the

@@ -19,7 +19,7 @@ use crate::model::{
 };
 use crate::tags;
 
-use super::select::Builder;
+use super::select::{Builder, Ring};
 
 /// 4πA/P² of a loop must reach this to be guessed a roundabout: a circle is 1, a regular
 /// hexagon 0.91, a square 0.785 (city blocks of one-way streets stay out).
@@ -34,22 +34,6 @@ const GUESS_MIN_ARM_ROADS: usize = 2;
 const GUESS_PERIMETER_M: (f64, f64) = (15.0, 600.0);
 /// Lane count keys whose values are checked on ring ways.
 const LANE_COUNT_KEYS: &[&str] = &["lanes", "lanes:forward", "lanes:backward"];
-
-/// One group of tagged ring ways (sharing nodes), as `find_rings` found it, or a guessed
-/// loop (`connect_rings`).
-#[derive(Debug, Clone)]
-pub(crate) struct Ring {
-    pub source: RoundaboutSource,
-    /// The ring's OSM ways, sorted.
-    pub ways: Vec<i64>,
-    pub kind: RoundaboutKind,
-    /// The roads made of those ways, sorted.
-    pub roads: Vec<RoadId>,
-    /// Why the ring cannot be a roundabout; None when it may be one.
-    pub broken: Option<String>,
-    /// Problems that do not keep it from being a roundabout, listed with whether it is one.
-    pub warnings: Vec<String>,
-}
 
 /// The connections between lanes, both ways.
 struct LaneGraph {

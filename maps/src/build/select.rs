@@ -6,13 +6,16 @@ use std::collections::{BTreeMap, BTreeSet};
 use crate::error::MapError;
 use crate::geometry::{Bounds, Point, polyline_length};
 use crate::invariants::check_invariants;
-use crate::model::{Junction, JunctionId, JunctionKind, Map, Road, RoadId, RoadSource};
+use crate::model::{
+    Junction, JunctionId, JunctionKind, Map, Road, RoadId, RoadSource, RoundaboutKind,
+    RoundaboutSource,
+};
 use crate::osm::{OsmData, Tags};
 use crate::projection::{LatLon, Projection};
 use crate::tags;
 
 use super::mini::MiniRings;
-use super::{Clip, ImportOptions};
+use crate::options::{Clip, ImportOptions};
 
 /// Per road, what the later steps need from its way.
 #[derive(Debug, Clone)]
@@ -44,6 +47,23 @@ impl RoadInfo<'_> {
     }
 }
 
+/// One group of tagged ring ways (sharing nodes), as `find_rings` found it, or a guessed
+/// loop (`connect_rings`). Defined here, next to the [`Builder`] that holds the rings, so
+/// that the roundabout steps build on this module and not the other way round.
+#[derive(Debug, Clone)]
+pub(crate) struct Ring {
+    pub source: RoundaboutSource,
+    /// The ring's OSM ways, sorted.
+    pub ways: Vec<i64>,
+    pub kind: RoundaboutKind,
+    /// The roads made of those ways, sorted.
+    pub roads: Vec<RoadId>,
+    /// Why the ring cannot be a roundabout; None when it may be one.
+    pub broken: Option<String>,
+    /// Problems that do not keep it from being a roundabout, listed with whether it is one.
+    pub warnings: Vec<String>,
+}
+
 /// The map under construction plus what the steps need from the OSM data.
 #[derive(Debug)]
 pub(crate) struct Builder<'a> {
@@ -53,7 +73,7 @@ pub(crate) struct Builder<'a> {
     pub info: BTreeMap<RoadId, RoadInfo<'a>>,
     pub junction_of_node: BTreeMap<i64, JunctionId>,
     /// Tagged rings found by `find_rings`, in order of their ways, then the guessed loops.
-    pub rings: Vec<super::roundabouts::Ring>,
+    pub rings: Vec<Ring>,
     /// The rings made of mini-roundabout nodes (`None` when the data has none).
     pub minis: Option<&'a MiniRings>,
 }
