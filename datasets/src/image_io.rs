@@ -30,7 +30,7 @@ pub fn decode_image(path: &Path, bytes: &[u8]) -> Result<DynamicImage> {
         Some(ImageFormat::Png) => check_png_whole(bytes),
         _ => Ok(()),
     };
-    whole.map_err(|problem| DatasetError::image(path, problem))?;
+    whole.map_err(|problem| DatasetError::image(path, problem.to_string()))?;
     reader
         .decode()
         .map_err(|e| DatasetError::image(path, format!("not a readable image: {e}")))
@@ -41,6 +41,27 @@ pub const JPEG_TRUNCATED: &str = "truncated JPEG: the data ends before its end-o
 /// What [`check_png_whole`] says of PNG data that stops early.
 pub const PNG_TRUNCATED: &str = "truncated PNG: the data ends before its IEND chunk";
 
+/// Why JPEG or PNG data is not whole ([`check_jpeg_whole`], [`check_png_whole`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NotWhole {
+    #[error("not a JPEG: it does not start with a start-of-image marker")]
+    NotJpeg,
+    #[error("{JPEG_TRUNCATED}")]
+    JpegTruncated,
+    #[error("corrupt JPEG: the segment of marker FF{marker:02X} at byte {at} has length {length}")]
+    JpegSegment {
+        marker: u8,
+        at: usize,
+        length: usize,
+    },
+    #[error("not a PNG: it does not start with the PNG signature")]
+    NotPng,
+    #[error("{PNG_TRUNCATED}")]
+    PngTruncated,
+    #[error("corrupt PNG: the chunk at byte {at} has length {length}, over the PNG limit")]
+    PngChunk { at: usize, length: u32 },
+}
+
 /// Checks that JPEG data is whole by walking its structure to the end-of-image marker (EOI):
 /// the start-of-image marker, then marker segments, each skipped by its length, and after
 /// each start-of-scan (SOS) segment its entropy-coded data, up to the next marker that is
@@ -48,27 +69,27 @@ pub const PNG_TRUNCATED: &str = "truncated PNG: the data ends before its IEND ch
 /// multi-scan file has several scans, each walked the same way. Bytes after EOI are
 /// allowed (many cameras write some); stray bytes between segments are passed over, as
 /// decoders do. An error says what is wrong.
-pub fn check_jpeg_whole(bytes: &[u8]) -> std::result::Result<(), String> {
+pub fn check_jpeg_whole(bytes: &[u8]) -> std::result::Result<(), NotWhole> {
     const SOI: u8 = 0xD8;
     const EOI: u8 = 0xD9;
     const SOS: u8 = 0xDA;
     const TEM: u8 = 0x01;
     let is_rst = |m: u8| (0xD0..=0xD7).contains(&m);
     if !bytes.starts_with(&[0xFF, SOI]) {
-        return Err("not a JPEG: it does not start with a start-of-image marker".into());
+        return Err(NotWhole::NotJpeg);
     }
     let mut pos = 2;
     loop {
         // The next marker: a 0xFF (fill bytes 0xFF may repeat) and the marker's code.
         let Some(ff) = bytes[pos..].iter().position(|&b| b == 0xFF) else {
-            return Err(JPEG_TRUNCATED.into());
+            return Err(NotWhole::JpegTruncated);
         };
         pos += ff;
         while bytes.get(pos + 1) == Some(&0xFF) {
             pos += 1;
         }
         let Some(&marker) = bytes.get(pos + 1) else {
-            return Err(JPEG_TRUNCATED.into());
+            return Err(NotWhole::JpegTruncated);
         };
         let at = pos;
         pos += 2;
@@ -80,28 +101,26 @@ pub fn check_jpeg_whole(bytes: &[u8]) -> std::result::Result<(), String> {
             _ => {}
         }
         let Some(length) = bytes.get(pos..pos + 2) else {
-            return Err(JPEG_TRUNCATED.into());
+            return Err(NotWhole::JpegTruncated);
         };
         let length = usize::from(u16::from_be_bytes([length[0], length[1]]));
         if length < 2 {
-            return Err(format!(
-                "corrupt JPEG: the segment of marker FF{marker:02X} at byte {at} has length {length}"
-            ));
+            return Err(NotWhole::JpegSegment { marker, at, length });
         }
         pos += length;
         if pos > bytes.len() {
-            return Err(JPEG_TRUNCATED.into());
+            return Err(NotWhole::JpegTruncated);
         }
         if marker == SOS {
             // The scan's entropy-coded data runs to the first marker that is not a
             // stuffed byte or a restart marker.
             loop {
                 let Some(ff) = bytes[pos..].iter().position(|&b| b == 0xFF) else {
-                    return Err(JPEG_TRUNCATED.into());
+                    return Err(NotWhole::JpegTruncated);
                 };
                 pos += ff;
                 match bytes.get(pos + 1) {
-                    None => return Err(JPEG_TRUNCATED.into()),
+                    None => return Err(NotWhole::JpegTruncated),
                     Some(&m) if m == 0x00 || is_rst(m) => pos += 2,
                     // Fill bytes before a marker: the outer loop reads past them.
                     Some(_) => break,
@@ -113,27 +132,25 @@ pub fn check_jpeg_whole(bytes: &[u8]) -> std::result::Result<(), String> {
 
 /// Checks that PNG data is whole by walking its chunks (length, type, data, CRC) to the
 /// IEND chunk. Bytes after IEND are allowed. An error says what is wrong.
-pub fn check_png_whole(bytes: &[u8]) -> std::result::Result<(), String> {
+pub fn check_png_whole(bytes: &[u8]) -> std::result::Result<(), NotWhole> {
     const SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0D, 0x0A, 0x1A, 0x0A];
     if !bytes.starts_with(&SIGNATURE) {
-        return Err("not a PNG: it does not start with the PNG signature".into());
+        return Err(NotWhole::NotPng);
     }
     let mut pos = SIGNATURE.len();
     loop {
         let Some(head) = bytes.get(pos..pos + 8) else {
-            return Err(PNG_TRUNCATED.into());
+            return Err(NotWhole::PngTruncated);
         };
         let length = u32::from_be_bytes([head[0], head[1], head[2], head[3]]);
         let kind = [head[4], head[5], head[6], head[7]];
         if length > 0x7FFF_FFFF {
-            return Err(format!(
-                "corrupt PNG: the chunk at byte {pos} has length {length}, over the PNG limit"
-            ));
+            return Err(NotWhole::PngChunk { at: pos, length });
         }
         // Length, type, data and CRC.
         let end = pos + 12 + length as usize;
         if end > bytes.len() {
-            return Err(PNG_TRUNCATED.into());
+            return Err(NotWhole::PngTruncated);
         }
         if &kind == b"IEND" {
             return Ok(());
@@ -350,13 +367,13 @@ mod tests {
         }
         assert_eq!(
             check_jpeg_whole(&bytes[..bytes.len() - 2]),
-            Err(JPEG_TRUNCATED.to_owned())
+            Err(NotWhole::JpegTruncated)
         );
         // A segment length below 2 is corrupt, not truncated.
         let mut bad = bytes.clone();
         bad[4..6].copy_from_slice(&[0, 1]);
         let err = check_jpeg_whole(&bad).expect_err("length 1");
-        assert!(err.starts_with("corrupt JPEG: "), "{err}");
+        assert!(err.to_string().starts_with("corrupt JPEG: "), "{err}");
     }
 
     /// A progressive JPEG (ten scans, a restart marker after every MCU; made with

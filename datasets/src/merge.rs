@@ -30,19 +30,28 @@ pub struct MergePlan {
     pub counts: Vec<usize>,
 }
 
+/// Weights that give no merge plan ([`plan`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MergePlanError {
+    #[error("nothing to merge")]
+    Nothing,
+    #[error("weights must be finite and not negative: {0:?}")]
+    Weights(Vec<f64>),
+    #[error("at least one weight must be positive")]
+    NoPositiveWeight,
+}
+
 /// Shares of `total` by weight, largest remainders first (ties to the earlier input).
-pub fn plan(weights: &[f64], total: usize) -> std::result::Result<MergePlan, String> {
+pub fn plan(weights: &[f64], total: usize) -> std::result::Result<MergePlan, MergePlanError> {
     if weights.is_empty() {
-        return Err("nothing to merge".into());
+        return Err(MergePlanError::Nothing);
     }
     if weights.iter().any(|w| !w.is_finite() || *w < 0.0) {
-        return Err(format!(
-            "weights must be finite and not negative: {weights:?}"
-        ));
+        return Err(MergePlanError::Weights(weights.to_vec()));
     }
     let sum: f64 = weights.iter().sum();
     if sum <= 0.0 {
-        return Err("at least one weight must be positive".into());
+        return Err(MergePlanError::NoPositiveWeight);
     }
     let exact: Vec<f64> = weights.iter().map(|w| total as f64 * w / sum).collect();
     let mut counts: Vec<usize> = exact.iter().map(|e| e.floor() as usize).collect();
@@ -103,7 +112,7 @@ pub fn merge(
         )));
     }
     let total = total.unwrap_or_else(|| inputs.iter().map(|d| d.items.len()).sum());
-    let plan = plan(weights, total).map_err(DatasetError::Config)?;
+    let plan = plan(weights, total).map_err(|e| DatasetError::Config(e.to_string()))?;
     let mut items = Vec::with_capacity(total);
     for (index, (dataset, &count)) in inputs.iter().zip(&plan.counts).enumerate() {
         if count > 0 && dataset.items.is_empty() {
@@ -185,7 +194,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn plan_follows_the_weights() -> std::result::Result<(), String> {
+    fn plan_follows_the_weights() -> std::result::Result<(), MergePlanError> {
         assert_eq!(plan(&[1.0, 1.0], 10)?.counts, vec![5, 5]);
         assert_eq!(plan(&[2.0, 1.0], 10)?.counts, vec![7, 3]);
         assert_eq!(plan(&[1.0, 1.0, 1.0], 10)?.counts, vec![4, 3, 3]);

@@ -22,10 +22,15 @@ pub struct Shard {
     pub count: u64,
 }
 
+/// Text that is not a shard `i/n` ([`Shard::parse`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("expected i/n with 0 <= i < n (e.g. 0/4), not `{0}`")]
+pub struct ShardParseError(pub String);
+
 impl Shard {
     /// Parses `i/n` (0 ≤ i < n).
-    pub fn parse(s: &str) -> std::result::Result<Shard, String> {
-        let bad = || format!("expected i/n with 0 <= i < n (e.g. 0/4), not `{s}`");
+    pub fn parse(s: &str) -> std::result::Result<Shard, ShardParseError> {
+        let bad = || ShardParseError(s.to_owned());
         let (i, n) = s.split_once('/').ok_or_else(bad)?;
         let index: u64 = i.trim().parse().map_err(|_| bad())?;
         let count: u64 = n.trim().parse().map_err(|_| bad())?;

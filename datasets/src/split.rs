@@ -45,17 +45,23 @@ impl Default for SplitRatios {
     }
 }
 
+/// Split shares that cannot be used ([`SplitRatios::validate`]): train, val, test.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SplitSharesError {
+    #[error("split shares must be within 0..1, not {0:?}")]
+    OutsideUnit([f64; 3]),
+    #[error("split shares must add up to 1 (train {} + val {} + test {})", .0[0], .0[1], .0[2])]
+    Sum([f64; 3]),
+}
+
 impl SplitRatios {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SplitSharesError> {
         let all = [self.train, self.val, self.test];
         if all.iter().any(|r| !(0.0..=1.0).contains(r)) {
-            return Err(format!("split shares must be within 0..1, not {all:?}"));
+            return Err(SplitSharesError::OutsideUnit(all));
         }
         if ((self.train + self.val + self.test) - 1.0).abs() > 1e-9 {
-            return Err(format!(
-                "split shares must add up to 1 (train {} + val {} + test {})",
-                self.train, self.val, self.test
-            ));
+            return Err(SplitSharesError::Sum(all));
         }
         Ok(())
     }

@@ -82,55 +82,95 @@ pub fn read_track_file(path: &Path) -> LogResult<TrackFile> {
     } else {
         String::from_utf8(raw).map_err(|_| LogError::format(path, "not UTF-8 text"))?
     };
-    parse_tracks(&text).map_err(|m| LogError::format(path, m))
+    parse_tracks(&text).map_err(|e| LogError::format(path, e.to_string()))
 }
 
 /// Parses the text of a track file.
-pub fn parse_tracks(text: &str) -> Result<TrackFile, String> {
-    let mut lines = text.lines();
-    let header = lines.next().unwrap_or("").trim_end_matches('\r');
-    if header != TRACK_HEADER {
-        return Err(format!(
-            "not an INTERACTION per-recording track file: the header is `{header}`, \
-             expected `{TRACK_HEADER}`"
-        ));
+pub fn parse_tracks(text: &str) -> Result<TrackFile, TrackFileError> {
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .from_reader(text.as_bytes());
+    let mut records = reader.records();
+    let header = match records.next() {
+        Some(Ok(record)) => record.iter().collect::<Vec<_>>().join(","),
+        Some(Err(e)) => e.to_string(),
+        None => String::new(),
+    };
+    if header.trim_end_matches('\r') != TRACK_HEADER {
+        return Err(TrackFileError::Header { found: header });
     }
     let mut file = TrackFile::default();
-    for (i, line) in lines.enumerate() {
-        let line = line.trim_end_matches('\r');
-        if line.is_empty() {
-            continue;
-        }
-        match parse_row(line) {
-            Ok(row) => file.rows.push(row),
-            Err(reason) => file.skipped.push((i + 2, reason)),
+    // Line numbers from the records' byte offsets: csv's own line count lags by one after
+    // CRLF line ends. A record starts at its first byte, or at the `\n` of a CRLF before it.
+    let mut counted = (0usize, 1usize);
+    let mut line_at = |byte: usize| {
+        let (from, line) = counted;
+        let end = (byte + 1).min(text.len()).max(from);
+        let more = text.as_bytes()[from..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        counted = (end, line + more);
+        line + more
+    };
+    for record in records {
+        match record {
+            Ok(record) if record.iter().all(|f| f.trim().is_empty()) => {}
+            Ok(record) => {
+                let line = line_at(record.position().map_or(0, |p| p.byte() as usize));
+                match parse_row(&record) {
+                    Ok(row) => file.rows.push(row),
+                    Err(reason) => file.skipped.push((line, reason)),
+                }
+            }
+            Err(e) => {
+                let line = line_at(e.position().map_or(0, |p| p.byte() as usize));
+                file.skipped.push((line, e.to_string()));
+            }
         }
     }
     if file.rows.is_empty() {
-        return Err(match file.skipped.first() {
-            Some((line, reason)) => format!("no readable rows (line {line}: {reason})"),
-            None => "no rows".to_owned(),
+        return Err(TrackFileError::NoRows {
+            first_problem: file.skipped.first().cloned(),
         });
     }
     Ok(file)
 }
 
-fn parse_row(line: &str) -> Result<TrackRow, String> {
-    let fields: Vec<&str> = line.split(',').collect();
+/// Why a text is not a track file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TrackFileError {
+    #[error(
+        "not an INTERACTION per-recording track file: the header is `{found}`, expected `{TRACK_HEADER}`"
+    )]
+    Header { found: String },
+    #[error("{}", match first_problem {
+        Some((line, reason)) => format!("no readable rows (line {line}: {reason})"),
+        None => "no rows".to_owned(),
+    })]
+    NoRows {
+        /// The first row that could not be read: its line and why.
+        first_problem: Option<(usize, String)>,
+    },
+}
+
+fn parse_row(fields: &csv::StringRecord) -> Result<TrackRow, String> {
     if fields.len() != 11 {
         return Err(format!("{} fields, expected 11", fields.len()));
     }
+    let field = |i: usize| fields.get(i).unwrap_or("").trim_end_matches('\r');
     let int = |i: usize, name: &str| -> Result<u64, String> {
-        fields[i]
+        field(i)
             .trim()
             .parse::<u64>()
-            .map_err(|_| format!("{name} `{}` is not a whole number", fields[i]))
+            .map_err(|_| format!("{name} `{}` is not a whole number", field(i)))
     };
     let num = |i: usize, name: &str| -> Result<f64, String> {
-        let v: f64 = fields[i]
+        let v: f64 = field(i)
             .trim()
             .parse()
-            .map_err(|_| format!("{name} `{}` is not a number", fields[i]))?;
+            .map_err(|_| format!("{name} `{}` is not a number", field(i)))?;
         if v.is_finite() {
             Ok(v)
         } else {
@@ -143,7 +183,7 @@ fn parse_row(line: &str) -> Result<TrackRow, String> {
         track_id: small(int(0, "track_id")?, "track_id")?,
         frame_id: small(int(1, "frame_id")?, "frame_id")?,
         timestamp_ms: int(2, "timestamp_ms")?,
-        agent_type: fields[3].trim().to_owned(),
+        agent_type: field(3).trim().to_owned(),
         x: num(4, "x")?,
         y: num(5, "y")?,
         vx: num(6, "vx")?,
@@ -159,7 +199,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn crlf_negative_zero_round_off_and_a_bad_row() -> Result<(), String> {
+    fn crlf_negative_zero_round_off_and_a_bad_row() -> Result<(), TrackFileError> {
         let text = format!(
             "{TRACK_HEADER}\r\n1,1,100,car,1011.3889999999999,980.5,-0,0.5,-0,4.5,1.8\r\n\
              1,2,200,car,1011.4,980.6,0.1,0.5,0.1,4.5,1.8\r\n2,2,200,car,x,1,1,1,1,1,1\r\n\
@@ -181,5 +221,25 @@ mod tests {
     fn wrong_header_is_an_error() {
         assert!(parse_tracks("case_id,track_id,frame_id\n1,2,3").is_err());
         assert!(parse_tracks("").is_err());
+    }
+
+    #[test]
+    fn quoted_fields_blank_lines_and_short_rows() -> Result<(), TrackFileError> {
+        let text = format!(
+            "{TRACK_HEADER}\n\n1,1,100,\"car\",1,2,0,0,0,4.5,1.8\n1,2,200,car,1\n\n\
+             1,3,300,car,1,2,0,0,0,4.5,1.8\n"
+        );
+        let file = parse_tracks(&text)?;
+        assert_eq!(file.rows.len(), 2);
+        assert_eq!(file.rows[0].agent_type, "car");
+        assert_eq!(file.skipped, vec![(4, "5 fields, expected 11".to_owned())]);
+        let only_bad = format!("{TRACK_HEADER}\n1,2\n");
+        assert_eq!(
+            parse_tracks(&only_bad).map(|_| ()),
+            Err(TrackFileError::NoRows {
+                first_problem: Some((2, "2 fields, expected 11".to_owned()))
+            })
+        );
+        Ok(())
     }
 }

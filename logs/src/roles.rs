@@ -127,25 +127,47 @@ impl TopicRoles {
     }
 
     /// The role's topic, or why there is none (to append to an error).
-    pub fn require(&self, role: Role) -> Result<&str, String> {
+    pub fn require(&self, role: Role) -> Result<&str, RoleError> {
         match self.get(role) {
             Assignment::Given { topic } | Assignment::Detected { topic } => Ok(topic),
-            Assignment::Ambiguous { candidates } => Err(format!(
-                "which topic holds the {} is ambiguous: {}",
-                role_words(role),
-                candidates.join(", ")
-            )),
-            Assignment::Absent => Err(format!(
-                "no topic holds the {} (types taken: {})",
-                role_words(role),
-                role.kinds()
-                    .iter()
-                    .map(MessageKind::type_name)
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )),
+            Assignment::Ambiguous { candidates } => Err(RoleError::Ambiguous {
+                role,
+                candidates: candidates.clone(),
+            }),
+            Assignment::Absent => Err(RoleError::Absent { role }),
         }
     }
+}
+
+/// Why a role has no topic ([`TopicRoles::require`], [`assign_roles`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RoleError {
+    #[error("which topic holds the {} is ambiguous: {}", role_words(*role), candidates.join(", "))]
+    Ambiguous { role: Role, candidates: Vec<String> },
+    #[error("no topic holds the {} (types taken: {})", role_words(*role), type_names(*role))]
+    Absent { role: Role },
+    #[error("the {} topic {topic} is not in the log", role.name())]
+    NotInLog { role: Role, topic: String },
+    #[error(
+        "the {} topic {topic} is {}; the role takes {}",
+        role.name(),
+        kind.map_or("of a type we do not decode".into(), |k| k.type_name()),
+        type_names(*role)
+    )]
+    WrongType {
+        role: Role,
+        topic: String,
+        kind: Option<MessageKind>,
+    },
+}
+
+/// The type names `role` takes, comma-separated.
+fn type_names(role: Role) -> String {
+    role.kinds()
+        .iter()
+        .map(MessageKind::type_name)
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn role_words(role: Role) -> &'static str {
@@ -173,7 +195,7 @@ pub fn topic_kind(type_name: &str, encoding: &str) -> Option<MessageKind> {
 pub fn assign_roles(
     topics: &[(String, Option<MessageKind>)],
     config: &RoleConfig,
-) -> Result<TopicRoles, String> {
+) -> Result<TopicRoles, RoleError> {
     let mut assigned = Vec::with_capacity(Role::ALL.len());
     // Objects first: the ego pose's candidates depend on the objects topic.
     for role in [Role::Objects, Role::EgoPose, Role::Gps, Role::Camera] {
@@ -181,22 +203,17 @@ pub fn assign_roles(
         let assignment = if let Some(given) = config.get(role) {
             match topics.iter().find(|(name, _)| name == given) {
                 None => {
-                    return Err(format!(
-                        "the {} topic {given} is not in the log",
-                        role.name()
-                    ));
+                    return Err(RoleError::NotInLog {
+                        role,
+                        topic: given.to_owned(),
+                    });
                 }
                 Some((_, kind)) if !fits(kind) => {
-                    return Err(format!(
-                        "the {} topic {given} is {}; the role takes {}",
-                        role.name(),
-                        kind.map_or("of a type we do not decode".into(), |k| k.type_name()),
-                        role.kinds()
-                            .iter()
-                            .map(MessageKind::type_name)
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ));
+                    return Err(RoleError::WrongType {
+                        role,
+                        topic: given.to_owned(),
+                        kind: *kind,
+                    });
                 }
                 Some(_) => Assignment::Given {
                     topic: given.to_owned(),
@@ -291,7 +308,7 @@ mod tests {
         assert!(
             roles
                 .require(Role::Objects)
-                .is_err_and(|e| e.contains("Detection3DArray"))
+                .is_err_and(|e| e.to_string().contains("Detection3DArray"))
         );
     }
 
@@ -333,7 +350,7 @@ mod tests {
         assert!(
             roles
                 .require(Role::EgoPose)
-                .is_err_and(|e| e.contains("/odometry/filtered"))
+                .is_err_and(|e| e.to_string().contains("/odometry/filtered"))
         );
         assert_eq!(roles.camera.topic(), Some("/cam/front"));
         let config = RoleConfig {
@@ -356,7 +373,10 @@ mod tests {
                 ego_pose: Some(given.into()),
                 ..RoleConfig::default()
             };
-            let err = assign_roles(&t, &config).err().unwrap_or_default();
+            let err = assign_roles(&t, &config)
+                .err()
+                .map(|e| e.to_string())
+                .unwrap_or_default();
             assert!(err.contains(expected), "{err}");
         }
     }

@@ -255,17 +255,28 @@ fn noise_offsets(sigma: f64) -> [i16; NORMAL_LEVELS] {
     normal_table().map(|z| ((s * z + 0.5).clamp(-1024.0, 1024.0) + 1024.0) as i16 - 1024)
 }
 
+/// Why a JPEG round trip ([`jpeg`]) failed.
+#[derive(Debug, thiserror::Error)]
+pub enum JpegRoundTripError {
+    #[error("JPEG encoding failed: {0}")]
+    Encode(image::ImageError),
+    #[error("JPEG decoding failed: {0}")]
+    Decode(image::ImageError),
+    #[error("JPEG round trip changed the size")]
+    Size,
+}
+
 /// Compresses as JPEG at `quality` (1-100) and decodes again.
-pub fn jpeg(image: &mut RgbImage, quality: u8) -> Result<(), String> {
+pub fn jpeg(image: &mut RgbImage, quality: u8) -> Result<(), JpegRoundTripError> {
     let mut bytes = Vec::new();
     JpegEncoder::new_with_quality(&mut bytes, quality.clamp(1, 100))
         .encode_image(&*image)
-        .map_err(|e| format!("JPEG encoding failed: {e}"))?;
+        .map_err(JpegRoundTripError::Encode)?;
     let decoded = image::load(Cursor::new(&bytes), image::ImageFormat::Jpeg)
-        .map_err(|e| format!("JPEG decoding failed: {e}"))?
+        .map_err(JpegRoundTripError::Decode)?
         .into_rgb8();
     if decoded.dimensions() != image.dimensions() {
-        return Err("JPEG round trip changed the size".into());
+        return Err(JpegRoundTripError::Size);
     }
     *image = decoded;
     Ok(())
@@ -403,7 +414,7 @@ mod tests {
     }
 
     #[test]
-    fn jpeg_round_trip_keeps_the_size() -> Result<(), String> {
+    fn jpeg_round_trip_keeps_the_size() -> Result<(), JpegRoundTripError> {
         let mut i = RgbImage::from_fn(33, 17, |x, y| image::Rgb([x as u8 * 7, y as u8 * 13, 99]));
         jpeg(&mut i, 30)?;
         assert_eq!(i.dimensions(), (33, 17));

@@ -157,7 +157,9 @@ pub fn apply(ops: &[Op], image: &RgbImage, label: &GrayImage) -> Result<(RgbImag
             Op::GaussianBlur { sigma } => filters::gaussian_blur(image, *sigma),
             Op::MotionBlur { length, degrees } => filters::motion_blur(image, *length, *degrees),
             Op::GaussianNoise { sigma, seed } => filters::gaussian_noise(image, *sigma, *seed),
-            Op::Jpeg { quality } => filters::jpeg(image, *quality).map_err(DatasetError::Config)?,
+            Op::Jpeg { quality } => {
+                filters::jpeg(image, *quality).map_err(|e| DatasetError::Config(e.to_string()))?
+            }
             _ => {}
         }
     }
@@ -266,7 +268,7 @@ impl AugmentConfig {
     }
 
     /// Checks ranges and chances, naming the offending field.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> std::result::Result<(), AugmentSettingError> {
         let fields: [(&str, Option<Chance>, f64, f64); 16] = [
             ("crop", self.crop, 0.01, 1.0),
             ("scale", self.scale, 0.01, 16.0),
@@ -288,13 +290,15 @@ impl AugmentConfig {
         for (name, chance, low, high) in fields {
             let Some(c) = chance else { continue };
             if !(0.0..=1.0).contains(&c.p) {
-                return Err(format!("{name}: p = {} is not in 0..1", c.p));
+                return Err(AugmentSettingError::Chance { name, p: c.p });
             }
             let [a, b] = c.range;
             if !(a.is_finite() && b.is_finite() && a <= b && a >= low && b <= high) {
-                return Err(format!(
-                    "{name}: range [{a}, {b}] must be ordered and within [{low}, {high}]"
-                ));
+                return Err(AugmentSettingError::Range {
+                    name,
+                    range: [a, b],
+                    within: [low, high],
+                });
             }
         }
         Ok(())
@@ -523,7 +527,9 @@ pub fn augment_dataset_with_progress(
     out_dir: &Path,
     item_done: &(dyn Fn() + Sync),
 ) -> Result<AugmentOutcome> {
-    opts.config.validate().map_err(DatasetError::Config)?;
+    opts.config
+        .validate()
+        .map_err(|e| DatasetError::Config(e.to_string()))?;
     let all = dataset.items.len() as u64;
     let indices = opts.shard.map_or(0..all, |shard| shard.range(all));
     let results: Vec<(String, Result<Vec<Item>>)> = (indices.start as usize..indices.end as usize)
@@ -585,6 +591,19 @@ pub fn augment_dataset_with_progress(
     })
 }
 
+/// A chain's setting out of range ([`AugmentConfig::validate`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AugmentSettingError {
+    #[error("{name}: p = {p} is not in 0..1")]
+    Chance { name: &'static str, p: f64 },
+    #[error("{name}: range [{}, {}] must be ordered and within [{}, {}]", range[0], range[1], within[0], within[1])]
+    Range {
+        name: &'static str,
+        range: [f64; 2],
+        within: [f64; 2],
+    },
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -616,7 +635,10 @@ mod tests {
         );
         let mut bad = AugmentConfig::preset(Preset::Thesis);
         bad.rotate = Some(Chance::new(1.5, 0.0, 1.0));
-        assert!(bad.validate().is_err_and(|e| e.starts_with("rotate")));
+        assert!(
+            bad.validate()
+                .is_err_and(|e| e.to_string().starts_with("rotate"))
+        );
     }
 
     #[test]

@@ -64,9 +64,9 @@ pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
         val: args.val,
         test: args.test,
     };
-    ratios.validate().map_err(|m| {
+    ratios.validate().map_err(|e| {
         CliError::new(
-            m,
+            e.to_string(),
             "e.g. --train 0.7 --val 0.3, or --train 0.8 --val 0.1 --test 0.1",
         )
     })?;

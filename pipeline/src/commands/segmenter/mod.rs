@@ -16,6 +16,7 @@
 mod arch_args;
 mod bench;
 mod eval;
+mod eval_report;
 mod predict;
 mod recalibrate;
 mod record;
