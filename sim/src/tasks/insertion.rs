@@ -16,7 +16,7 @@
 //!   lane), Crashed (its footprint overlaps another's), OffRoad (its centre leaves the
 //!   navigable area), TimeOver (`time_limit_s`).
 //! - The ego's aggressiveness is drawn uniformly in [0, 1] per episode for training, or
-//!   fixed for evaluation ([`insertion_eval`](super::insertion_eval): conditions of traffic
+//!   fixed for evaluation ([`eval::insertion`](crate::eval::insertion): conditions of traffic
 //!   × aggressiveness); other drivers draw their own.
 //! - Baselines: the Parma study's rules ([`crate::baselines::Baseline::STANDARD`]).
 
@@ -27,7 +27,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::insertion_eval::{self, Condition};
 pub use super::motion_inputs::{MOTION_SCALARS, MotionHistory};
 use super::roundabouts::{EgoView, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
 use super::{
@@ -36,6 +35,7 @@ use super::{
 use crate::baselines::{Baseline, InsertionPolicy};
 use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
 use crate::error::SimError;
+use crate::eval::insertion::{self as insertion_eval, Condition};
 use crate::eval::{EvalHeader, EvalReport, Evaluation};
 use crate::observer::SceneObserver;
 use crate::render::{BevConfig, BevRenderer};
@@ -1009,7 +1009,7 @@ impl Task for RoundaboutInsertion {
 
     fn eval_report(
         header: &EvalHeader,
-        evaluation: &Evaluation<Self>,
+        evaluation: &Evaluation<Condition, EpisodeSummary>,
     ) -> Result<EvalReport, SimError> {
         insertion_eval::report(header, evaluation)
     }

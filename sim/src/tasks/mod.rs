@@ -6,7 +6,7 @@
 //! evaluation harness ([`crate::eval`]) runs any of them with any [`TaskPolicy`]: a learned
 //! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
 //!
-//! - [`insertion`]: roundabout insertion (its evaluation: [`insertion_eval`]);
+//! - [`insertion`]: roundabout insertion (its evaluation: [`crate::eval::insertion`]);
 //!   [`ring_driving`]: roundabout driving; [`route`]: campus route following;
 //!   [`obstacle`]: obstacle avoidance. Each file holds what is the task's own: its actions,
 //!   reward, termination, metrics and rules.
@@ -41,8 +41,8 @@ macro_rules! actions {
 }
 
 pub mod episode;
+pub mod id;
 pub mod insertion;
-pub mod insertion_eval;
 pub mod motion_inputs;
 pub mod obstacle;
 pub mod registry;
@@ -58,13 +58,14 @@ use serde::de::DeserializeOwned;
 
 use maps::{Map, Point};
 
-use crate::env::{Env, Observation, Outcome};
+use crate::env::{Env, Observation};
 use crate::error::SimError;
-use crate::eval::{EvalHeader, EvalReport, Evaluation};
+use crate::eval::report::{EvalHeader, EvalReport, Evaluation, conditions_report};
 use crate::observer::{CameraViewConfig, SceneObserver};
 use crate::scene::Scene;
 use crate::world::TrafficLevel;
 
+pub use crate::eval::report::TaskSummary;
 pub use episode::Episode;
 pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
@@ -170,13 +171,13 @@ pub trait Task: Env + Sized + 'static {
             .unwrap_or_else(|| Self::recorded_condition(TrafficLevel::Medium))
     }
 
-    /// The files of an evaluation: by default a table of [`crate::eval::TaskResult`]s per
+    /// The files of an evaluation: by default a table of [`crate::eval::report::TaskResult`]s per
     /// condition.
     fn eval_report(
         header: &EvalHeader,
-        evaluation: &Evaluation<Self>,
+        evaluation: &Evaluation<Self::Condition, Self::Summary>,
     ) -> Result<EvalReport, SimError> {
-        crate::eval::conditions_report(header, evaluation)
+        conditions_report(header, evaluation, Self::condition_name)
     }
 
     /// The figures of the current (normally just finished) episode.
@@ -235,16 +236,6 @@ pub struct LayerFrame<'a> {
     pub names: &'a [crate::render::Layer],
     pub width: usize,
     pub height: usize,
-}
-
-/// What an evaluation table reads from an episode's summary.
-pub trait TaskSummary: Clone + Send + Serialize {
-    fn outcome(&self) -> Outcome;
-    fn episode_return(&self) -> f64;
-    /// The task's own metrics, by name with their unit (e.g. `("mean angle deviation °", 12.0)`),
-    /// in the same order for every episode. A metric an episode cannot give (e.g. a
-    /// stopping distance when the ego never stopped) is NaN and left out of its mean.
-    fn metrics(&self) -> Vec<(&'static str, f64)>;
 }
 
 /// Makes one policy instance per chunk of episodes (policies are `Send`, not `Sync`).
