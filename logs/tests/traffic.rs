@@ -15,7 +15,7 @@ use logs::traffic::realism::compare;
 use logs::traffic::simulate::{recorded_flows, simulate};
 use maps::{Map, RoundaboutId};
 use sim::roundabout::{LayoutConfig, RoundaboutLayout};
-use sim::world::{CriticalGap, EntryFlow, TrafficConfig, TrafficLevel};
+use sim::world::{CriticalGap, EntryFlow, GapAcceptance, TrafficConfig, TrafficLevel};
 
 /// The FT map (None without ../shared/data).
 fn ft_map() -> Option<Map> {
@@ -37,7 +37,7 @@ fn known_world(map: &Map, median_s: f64, lateral: f64) -> (TrafficConfig, Layout
         spawn_clearance_m: 3.0,
         ..TrafficConfig::default()
     };
-    traffic.drivers.critical_gap = Some(CriticalGap {
+    traffic.drivers.critical_gap = GapAcceptance::Measured(CriticalGap {
         median_s,
         sigma: 0.3,
     });

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::kinematics::{Bicycle, advance_speed};
 use crate::path::PieceKey;
-use crate::roundabout::{RingRoute, RoundaboutLayout};
+use crate::roundabout::{LayoutConfig, RingRoute, RoundaboutLayout};
 use crate::scene::{Actor, ActorKind, OrientedBox};
 use crate::spatial::UniformGrid;
 
@@ -212,8 +212,12 @@ impl Span {
 }
 
 /// How drivers behave, from passive (aggressiveness 0) to aggressive (1).
+///
+/// Files write the gap acceptance as they always have: `critical_gap_s` (the margin, always
+/// written) and `critical_gap` (the measured distribution, when there is one); a measured
+/// distribution writes the default margin beside it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(from = "DriverConfigFile", into = "DriverConfigFile")]
 pub struct DriverConfig {
     /// Desired speed as a fraction of the path's nominal speed (limit and curves).
     pub speed_factor: Span,
@@ -225,21 +229,109 @@ pub struct DriverConfig {
     pub max_accel_mps2: Span,
     /// IDM comfortable deceleration, m/s².
     pub comfort_decel_mps2: Span,
-    /// Gap acceptance: time a circulating vehicle must be away from the merge point beyond
-    /// the time the driver needs to get its whole car past it, s.
-    pub critical_gap_s: Span,
+    /// Gap acceptance: how long a circulating vehicle must be away from the merge point for
+    /// a driver to enter.
+    pub critical_gap: GapAcceptance,
     /// Hardest braking for a vehicle merging in ahead (drivers expect it to wait; they do
     /// not brake to a standstill for a car that cuts in), m/s².
     pub merge_brake_mps2: Span,
     /// Hardest braking any vehicle can do, m/s².
     pub max_brake_mps2: f64,
-    /// Gap acceptance as the traffic-engineering literature measures it (set by `sim
-    /// calibrate`): a driver enters when every circulating vehicle is at least its critical
-    /// gap away in time from the merge point, the critical gaps of the drivers following
-    /// this distribution; `critical_gap_s` is then unused. Unset (the default), drivers
-    /// add `critical_gap_s` to the time they need to clear the merge point.
+}
+
+/// How drivers accept gaps in circulating traffic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GapAcceptance {
+    /// A margin (the file's `critical_gap_s`), s: a driver enters when every circulating
+    /// vehicle is at least the time it needs to get its whole car past the merge point plus
+    /// this margin away from that point.
+    Margin(Span),
+    /// Gap acceptance as the traffic-engineering literature measures it (the file's
+    /// `critical_gap`, set by `sim calibrate`): a driver enters when every circulating
+    /// vehicle is at least its critical gap away in time from the merge point, the critical
+    /// gaps of the drivers following this distribution.
+    Measured(CriticalGap),
+}
+
+impl GapAcceptance {
+    /// The uncalibrated drivers' margin.
+    pub const DEFAULT_MARGIN: Span = Span::new(2.0, 0.5);
+
+    /// The measured distribution, when drivers follow one.
+    pub fn measured(&self) -> Option<CriticalGap> {
+        match *self {
+            GapAcceptance::Measured(gap) => Some(gap),
+            GapAcceptance::Margin(_) => None,
+        }
+    }
+
+    /// A driver's gap acceptance at `aggressiveness`.
+    pub fn at(&self, aggressiveness: f64) -> DriverGap {
+        match self {
+            GapAcceptance::Margin(span) => DriverGap::Margin(span.at(aggressiveness)),
+            GapAcceptance::Measured(gap) => DriverGap::Lag(gap.of(aggressiveness)),
+        }
+    }
+}
+
+/// [`DriverConfig`] as files write it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+struct DriverConfigFile {
+    speed_factor: Span,
+    time_headway_s: Span,
+    min_gap_m: Span,
+    max_accel_mps2: Span,
+    comfort_decel_mps2: Span,
+    critical_gap_s: Span,
+    merge_brake_mps2: Span,
+    max_brake_mps2: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub critical_gap: Option<CriticalGap>,
+    critical_gap: Option<CriticalGap>,
+}
+
+impl Default for DriverConfigFile {
+    fn default() -> Self {
+        DriverConfig::default().into()
+    }
+}
+
+impl From<DriverConfigFile> for DriverConfig {
+    fn from(f: DriverConfigFile) -> Self {
+        DriverConfig {
+            speed_factor: f.speed_factor,
+            time_headway_s: f.time_headway_s,
+            min_gap_m: f.min_gap_m,
+            max_accel_mps2: f.max_accel_mps2,
+            comfort_decel_mps2: f.comfort_decel_mps2,
+            critical_gap: f.critical_gap.map_or(
+                GapAcceptance::Margin(f.critical_gap_s),
+                GapAcceptance::Measured,
+            ),
+            merge_brake_mps2: f.merge_brake_mps2,
+            max_brake_mps2: f.max_brake_mps2,
+        }
+    }
+}
+
+impl From<DriverConfig> for DriverConfigFile {
+    fn from(c: DriverConfig) -> Self {
+        let (critical_gap_s, critical_gap) = match c.critical_gap {
+            GapAcceptance::Margin(span) => (span, None),
+            GapAcceptance::Measured(gap) => (GapAcceptance::DEFAULT_MARGIN, Some(gap)),
+        };
+        DriverConfigFile {
+            speed_factor: c.speed_factor,
+            time_headway_s: c.time_headway_s,
+            min_gap_m: c.min_gap_m,
+            max_accel_mps2: c.max_accel_mps2,
+            comfort_decel_mps2: c.comfort_decel_mps2,
+            critical_gap_s,
+            merge_brake_mps2: c.merge_brake_mps2,
+            max_brake_mps2: c.max_brake_mps2,
+            critical_gap,
+        }
+    }
 }
 
 /// A lognormal distribution of drivers' critical gaps: a driver of aggressiveness `a` has
@@ -295,11 +387,44 @@ impl Default for DriverConfig {
             min_gap_m: Span::new(2.5, 1.5),
             max_accel_mps2: Span::new(1.2, 2.5),
             comfort_decel_mps2: Span::new(1.5, 3.0),
-            critical_gap_s: Span::new(2.0, 0.5),
+            critical_gap: GapAcceptance::Margin(GapAcceptance::DEFAULT_MARGIN),
             merge_brake_mps2: Span::new(8.0, 8.0),
             max_brake_mps2: 8.0,
-            critical_gap: None,
         }
+    }
+}
+
+/// A traffic world a config gives in place of a task's own (a calibration's `[traffic]`,
+/// `[recorded]` flows and `[layout]`): the one way it reaches every task that runs the
+/// traffic world, for training and for evaluation alike ([`crate::tasks::Task::in_world`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CalibratedWorld {
+    /// The traffic, when given.
+    pub traffic: Option<TrafficConfig>,
+    /// Recorded arrival flows, when given: they replace the traffic's flows.
+    pub flows: Option<Vec<EntryFlow>>,
+    /// The layout, when given.
+    pub layout: Option<LayoutConfig>,
+}
+
+impl CalibratedWorld {
+    /// Puts the world into a task's settings: the traffic (with the recorded flows) when
+    /// given, else only the recorded flows when given; the layout when given.
+    pub fn apply(&self, traffic: &mut TrafficConfig, layout: &mut LayoutConfig) {
+        if let Some(world) = &self.traffic {
+            *traffic = world.clone();
+        }
+        if let Some(flows) = &self.flows {
+            traffic.flows = flows.clone();
+        }
+        if let Some(world) = self.layout {
+            *layout = world;
+        }
+    }
+
+    /// Whether the world replaces nothing.
+    pub fn is_empty(&self) -> bool {
+        self.traffic.is_none() && self.flows.is_none() && self.layout.is_none()
     }
 }
 
@@ -439,11 +564,28 @@ pub struct Driver {
     pub min_gap_m: f64,
     pub max_accel_mps2: f64,
     pub comfort_decel_mps2: f64,
-    pub critical_gap_s: f64,
+    /// The driver's gap acceptance.
+    pub critical_gap: DriverGap,
     pub merge_brake_mps2: f64,
-    /// The critical gap as measured at a yield line (lag to the next circulating vehicle),
-    /// when drivers follow [`DriverConfig::critical_gap`], s.
-    pub critical_lag_s: Option<f64>,
+}
+
+/// One driver's gap acceptance (its [`GapAcceptance`] at its aggressiveness).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum DriverGap {
+    /// Beyond the time to clear the merge point, s.
+    Margin(f64),
+    /// The critical gap as measured at a yield line (lag to the next circulating vehicle), s.
+    Lag(f64),
+}
+
+impl DriverGap {
+    /// The measured critical gap, when the driver has one, s.
+    pub fn lag_s(&self) -> Option<f64> {
+        match *self {
+            DriverGap::Lag(gap) => Some(gap),
+            DriverGap::Margin(_) => None,
+        }
+    }
 }
 
 impl Driver {
@@ -456,9 +598,8 @@ impl Driver {
             min_gap_m: config.min_gap_m.at(a),
             max_accel_mps2: config.max_accel_mps2.at(a),
             comfort_decel_mps2: config.comfort_decel_mps2.at(a),
-            critical_gap_s: config.critical_gap_s.at(a),
+            critical_gap: config.critical_gap.at(a),
             merge_brake_mps2: config.merge_brake_mps2.at(a),
-            critical_lag_s: config.critical_gap.map(|g| g.of(a)),
         }
     }
 
@@ -468,9 +609,9 @@ impl Driver {
     /// to clear the merge point and [`CLEARING_MARGIN_S`] (a driver with a measured critical
     /// gap), or the time to clear the merge point plus its margin.
     pub fn needed_lag_s(&self, clearing_s: f64, to_line_s: f64) -> f64 {
-        match self.critical_lag_s {
-            Some(gap) => (to_line_s + gap).max(clearing_s + CLEARING_MARGIN_S),
-            None => clearing_s + self.critical_gap_s,
+        match self.critical_gap {
+            DriverGap::Lag(gap) => (to_line_s + gap).max(clearing_s + CLEARING_MARGIN_S),
+            DriverGap::Margin(margin) => clearing_s + margin,
         }
     }
 
@@ -731,7 +872,7 @@ impl World {
     /// Whether the world takes the care multi-lane rings need: a multi-lane ring, or drivers
     /// with measured critical gaps (who commit from farther off).
     fn careful(&self) -> bool {
-        self.multi_lane || self.config.drivers.critical_gap.is_some()
+        self.multi_lane || self.config.drivers.critical_gap.measured().is_some()
     }
 
     /// Below this speed a car on another's path is in its way whatever its heading (on
@@ -1219,13 +1360,13 @@ impl World {
             // looking, and withdraws when the gap has closed (a circulating car sped up, or
             // the driver was held up on the way).
             let stopping_m = v.speed * v.speed / (2.0 * v.driver.comfort_decel_mps2);
-            let reconsiders = self.multi_lane || v.driver.critical_lag_s.is_some();
+            let reconsiders = self.multi_lane || v.driver.critical_gap.lag_s().is_some();
             if v.committed && (!reconsiders || to_line < stopping_m + 0.5) {
                 continue;
             }
             // A driver with a measured critical gap judges gaps only at the head of its queue:
             // behind a driver still waiting at the line, it waits too.
-            if v.driver.critical_lag_s.is_some()
+            if v.driver.critical_gap.lag_s().is_some()
                 && to_line >= -0.5
                 && self
                     .leader(i)
@@ -1254,7 +1395,7 @@ impl World {
                 }
                 // A driver with a measured critical gap looks at the ring: a car still before
                 // its own yield line is not in the ring's traffic yet.
-                if v.driver.critical_lag_s.is_some()
+                if v.driver.critical_gap.lag_s().is_some()
                     && o.front_s() < self.layout.routes[o.route].yield_s
                 {
                     return true;
@@ -1279,7 +1420,7 @@ impl World {
                     .is_none_or(|c| {
                         // Drivers judging from far off expect a car leaving the ring to speed
                         // up to its desired speed at the zone.
-                        let speed = if v.driver.critical_lag_s.is_some() {
+                        let speed = if v.driver.critical_gap.lag_s().is_some() {
                             let path = &self.layout.routes[o.route].path;
                             o.speed.max(path.speed_at(c.from_s) * o.driver.speed_factor)
                         } else {
@@ -1311,7 +1452,7 @@ impl World {
                 }
                 // A driver with a measured critical gap needs room past the merge point: not
                 // into a queue standing on the ring (that is how rings lock up).
-                if v.driver.critical_lag_s.is_some()
+                if v.driver.critical_gap.lag_s().is_some()
                     && d <= 0.0
                     && d > -(o.length + v.length + ROOM_TO_ENTER_M)
                     && o.speed < QUEUE_MPS
@@ -1415,7 +1556,7 @@ impl World {
             let gap = start_s - v.front_s() + v.driver.min_gap_m - 0.3;
             a = a.min(v.driver.idm(v.speed, v0, Some((gap, v.speed))));
         }
-        if !v.committed && v.driver.critical_lag_s.is_some() {
+        if !v.committed && v.driver.critical_gap.lag_s().is_some() {
             // A driver judging gaps on the way rolls up to the line, braking only as late as
             // it can still stop short of it at most [`ROLLING_DECEL_SHARE`] of its
             // comfortable deceleration.
@@ -1819,5 +1960,82 @@ impl World {
                 }
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_measured_critical_gap_reads_and_writes_as_files_always_had_it() {
+        let text = r#"{"critical_gap":{"median_s":2.7,"sigma":0.3}}"#;
+        let config: DriverConfig = serde_json::from_str(text).unwrap();
+        let gap = CriticalGap {
+            median_s: 2.7,
+            sigma: 0.3,
+        };
+        assert_eq!(config.critical_gap, GapAcceptance::Measured(gap));
+        let written = serde_json::to_value(config).unwrap();
+        assert_eq!(written["critical_gap_s"]["passive"], 2.0);
+        assert_eq!(written["critical_gap_s"]["aggressive"], 0.5);
+        assert_eq!(written["critical_gap"]["median_s"], 2.7);
+        let again: DriverConfig = serde_json::from_value(written).unwrap();
+        assert_eq!(again, config);
+    }
+
+    #[test]
+    fn a_margin_reads_from_critical_gap_s_and_writes_no_distribution() {
+        let text = r#"{"critical_gap_s":{"passive":3.0,"aggressive":1.0}}"#;
+        let config: DriverConfig = serde_json::from_str(text).unwrap();
+        assert_eq!(
+            config.critical_gap,
+            GapAcceptance::Margin(Span::new(3.0, 1.0))
+        );
+        assert_eq!(config.speed_factor, DriverConfig::default().speed_factor);
+        let written = serde_json::to_value(config).unwrap();
+        assert!(written.get("critical_gap").is_none(), "{written}");
+        assert_eq!(written["critical_gap_s"]["passive"], 3.0);
+        let driver = Driver::new(&config, 1.0);
+        assert_eq!(driver.critical_gap, DriverGap::Margin(1.0));
+        assert_eq!(driver.needed_lag_s(2.0, 5.0), 3.0);
+    }
+
+    #[test]
+    fn a_calibrated_world_replaces_only_what_it_gives() {
+        let flows = vec![EntryFlow {
+            lane: 4,
+            vph: 300.0,
+            exits: Vec::new(),
+        }];
+        let mut traffic = TrafficConfig::default();
+        let mut layout = LayoutConfig::default();
+        let only_flows = CalibratedWorld {
+            flows: Some(flows.clone()),
+            ..CalibratedWorld::default()
+        };
+        only_flows.apply(&mut traffic, &mut layout);
+        assert_eq!(traffic.flows, flows);
+        assert_eq!(traffic.level, TrafficConfig::default().level);
+        assert_eq!(layout, LayoutConfig::default());
+
+        let world = CalibratedWorld {
+            traffic: Some(TrafficConfig {
+                level: TrafficLevel::High,
+                ..TrafficConfig::default()
+            }),
+            flows: Some(flows.clone()),
+            layout: None,
+        };
+        let mut traffic = TrafficConfig::default();
+        world.apply(&mut traffic, &mut layout);
+        assert_eq!(traffic.level, TrafficLevel::High);
+        assert_eq!(
+            traffic.flows, flows,
+            "the recorded flows replace the traffic's"
+        );
+        assert!(CalibratedWorld::default().is_empty());
+        assert!(!world.is_empty());
     }
 }

@@ -929,14 +929,11 @@ impl Task for RoundaboutInsertion {
 
     fn in_world(
         config: &InsertionConfig,
-        traffic: &crate::world::TrafficConfig,
-        layout: &crate::roundabout::LayoutConfig,
+        world: &crate::world::CalibratedWorld,
     ) -> Option<InsertionConfig> {
-        Some(InsertionConfig {
-            traffic: traffic.clone(),
-            layout: *layout,
-            ..config.clone()
-        })
+        let mut config = config.clone();
+        world.apply(&mut config.traffic, &mut config.layout);
+        Some(config)
     }
 
     fn on_roundabout(config: &InsertionConfig, id: u32) -> Option<InsertionConfig> {
@@ -1032,7 +1029,7 @@ impl Task for RoundaboutInsertion {
     /// critical gap.
     fn setup_baselines(setup: &InsertionSetup) -> Vec<(String, PolicyFactory<Self>)> {
         let mut all = Self::baselines();
-        if let Some(gap) = setup.config().traffic.drivers.critical_gap {
+        if let Some(gap) = setup.config().traffic.drivers.critical_gap.measured() {
             let baseline = Baseline::CriticalGap {
                 seconds: gap.median_s,
             };

@@ -63,7 +63,7 @@ use crate::error::SimError;
 use crate::eval::report::{EvalHeader, EvalReport, Evaluation, conditions_report};
 use crate::observer::{CameraViewConfig, SceneObserver};
 use crate::scene::Scene;
-use crate::world::TrafficLevel;
+use crate::world::{CalibratedWorld, TrafficLevel};
 
 pub use crate::eval::report::TaskSummary;
 pub use episode::Episode;
@@ -133,13 +133,10 @@ pub trait Task: Env + Sized + 'static {
         None
     }
 
-    /// The task in another traffic world (`traffic` and `layout` replacing the config's, as a
-    /// calibration does); None when the task runs no traffic world.
-    fn in_world(
-        _config: &Self::Config,
-        _traffic: &crate::world::TrafficConfig,
-        _layout: &crate::roundabout::LayoutConfig,
-    ) -> Option<Self::Config> {
+    /// The task in the traffic world `world` (a calibration's, replacing what the config
+    /// gives of its own): how a calibrated world reaches the task for training and for
+    /// evaluation alike. None when the task runs no traffic world.
+    fn in_world(_config: &Self::Config, _world: &CalibratedWorld) -> Option<Self::Config> {
         None
     }
 

@@ -683,14 +683,11 @@ impl Task for RingDriving {
 
     fn in_world(
         config: &RingDrivingConfig,
-        traffic: &crate::world::TrafficConfig,
-        layout: &crate::roundabout::LayoutConfig,
+        world: &crate::world::CalibratedWorld,
     ) -> Option<RingDrivingConfig> {
-        Some(RingDrivingConfig {
-            traffic: traffic.clone(),
-            layout: *layout,
-            ..config.clone()
-        })
+        let mut config = config.clone();
+        world.apply(&mut config.traffic, &mut config.layout);
+        Some(config)
     }
 
     fn on_roundabout(config: &RingDrivingConfig, id: u32) -> Option<RingDrivingConfig> {

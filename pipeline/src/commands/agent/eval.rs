@@ -114,11 +114,11 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
             )
         })?;
     }
-    if let Some(traffic) = ctx.config.world_traffic() {
+    let world = ctx.config.world();
+    if !world.is_empty() {
         // A calibration given with --config: the agent is judged in that world.
-        let layout = ctx.config.layout.unwrap_or_default();
-        if let Some(c) = T::in_world(&config, &traffic, &layout) {
-            progress.note("in the traffic world of --config ([traffic], [layout])");
+        if let Some(c) = T::in_world(&config, &world) {
+            progress.note("in the traffic world of --config ([traffic], [recorded], [layout])");
             config = c;
         }
     }

@@ -21,7 +21,7 @@ use anyhow::Result;
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, Subcommand, ValueEnum};
 use serde::{Deserialize, Serialize};
-use sim::tasks::{InsertionConfig, Task, TaskId};
+use sim::tasks::{InsertionConfig, Task, TaskId, TaskVisitor};
 use sim::world::TrafficLevel;
 
 use super::Context;
@@ -226,6 +226,16 @@ impl AgentConfig {
         ]
     }
 
+    /// The tables of the tasks' settings, to change in place.
+    fn task_tables_mut(&mut self) -> [&mut dyn Any; 4] {
+        [
+            &mut self.task,
+            &mut self.route,
+            &mut self.roundabout_driving,
+            &mut self.obstacle,
+        ]
+    }
+
     /// The settings table of task `T` (the table of its config type).
     pub fn task_table<T: Task>(&self) -> T::Config {
         self.task_tables()
@@ -236,10 +246,30 @@ impl AgentConfig {
     }
 }
 
+/// Puts a traffic world into task `T`'s settings table of an [`AgentConfig`] (what
+/// [`crate::config::Config::apply_world`] runs for every task).
+#[derive(Debug)]
+pub struct InWorld<'a> {
+    pub agent: &'a mut AgentConfig,
+    pub world: &'a sim::world::CalibratedWorld,
+}
+
+impl TaskVisitor for InWorld<'_> {
+    type Output = ();
+    fn visit<T: Task>(self) {
+        for table in self.agent.task_tables_mut() {
+            if let Some(config) = table.downcast_mut::<T::Config>()
+                && let Some(changed) = T::in_world(config, self.world)
+            {
+                *config = changed;
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sim::tasks::TaskVisitor;
 
     struct HasTable<'a>(&'a AgentConfig);
 
