@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::env::Observation;
 use crate::seed::derive_seed;
-use crate::tasks::{Task, TaskPolicy};
+use crate::tasks::{Driving, Task, TaskPolicy};
 use crate::world::TrafficLevel;
 
 pub mod insertion;
@@ -161,7 +161,7 @@ where
             }
         }
     }
-    envs.iter().map(Task::summary).collect()
+    envs.iter().map(Driving::summary).collect()
 }
 
 /// Validates `policy` for a training run at `traffic`: per validation condition of the task

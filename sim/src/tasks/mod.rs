@@ -15,7 +15,7 @@
 //!   roundabout tasks), [`motion_inputs`].
 
 /// Declares a task's actions: an enum indexed from 0 with `ALL`, `NAMES` (the serde names,
-/// as written in files and recordings) and `from_index`.
+/// as written in files and recordings) and `from_index`, and its [`runner::ActionSet`].
 macro_rules! actions {
     (
         $(#[$meta:meta])*
@@ -37,6 +37,28 @@ macro_rules! actions {
                 $name::ALL.get(i).copied()
             }
         }
+
+        impl $crate::tasks::runner::ActionSet for $name {
+            const NAMES: &'static [&'static str] = &$name::NAMES;
+
+            fn from_index(i: usize) -> Option<$name> {
+                $name::from_index(i)
+            }
+        }
+    };
+}
+
+/// [`runner::Driving::episode`] and [`runner::Driving::episode_mut`] of a task that keeps its episode in
+/// its `episode` field.
+macro_rules! episode_in_field {
+    () => {
+        fn episode(&self) -> &$crate::tasks::Episode {
+            &self.episode
+        }
+
+        fn episode_mut(&mut self) -> &mut $crate::tasks::Episode {
+            &mut self.episode
+        }
     };
 }
 
@@ -49,6 +71,7 @@ pub mod registry;
 pub mod ring_driving;
 pub mod roundabouts;
 pub mod route;
+pub mod runner;
 
 use std::fmt::Debug;
 use std::sync::Arc;
@@ -78,15 +101,14 @@ pub use ring_driving::{
     RingRewardConfig, SteerAction,
 };
 pub use roundabouts::{EgoView, RoundaboutSet, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
+pub use runner::{ActionSet, Driving};
 
 /// A driving task: an [`Env`] with everything training and evaluating an agent on it needs.
-pub trait Task: Env + Sized + 'static {
+pub trait Task: Driving + Env + Sized + 'static {
     /// The task's `[agent.<table>]` settings, stored in an agent's `task.json`.
     type Config: Clone + Debug + Default + Serialize + DeserializeOwned + Send + Sync + 'static;
     /// What is prepared once (map, layouts, renderers) and shared by every environment.
-    type Setup: Debug + Send + Sync + 'static;
-    /// The figures of one episode (outcome, return, the task's metrics).
-    type Summary: TaskSummary;
+    type Setup: TaskSetup<Config = Self::Config>;
     /// One evaluation condition: a traffic level, a route split, an obstacle scenario, ...
     type Condition: Clone + Debug + Send + Sync;
 
@@ -99,15 +121,19 @@ pub trait Task: Env + Sized + 'static {
         map: Option<Arc<Map>>,
         config: Self::Config,
         observer: Option<Arc<dyn SceneObserver>>,
-    ) -> Result<Arc<Self::Setup>, SimError>;
+    ) -> Result<Arc<Self::Setup>, SimError> {
+        Self::Setup::prepare(map, config, observer)
+    }
 
     /// The map the task drives on.
-    fn map(setup: &Self::Setup) -> &Map;
+    fn map(setup: &Self::Setup) -> &Map {
+        setup.map()
+    }
 
     /// The roundabouts of the map the task runs on (their ids, as `map info` lists them);
     /// empty for a task that runs on no roundabout.
-    fn roundabouts(_setup: &Self::Setup) -> Vec<u32> {
-        Vec::new()
+    fn roundabouts(setup: &Self::Setup) -> Vec<u32> {
+        setup.roundabouts()
     }
 
     /// The camera table of `config` when it asks for `view = "camera-segmentation"`: what
@@ -177,9 +203,6 @@ pub trait Task: Env + Sized + 'static {
         conditions_report(header, evaluation, Self::condition_name)
     }
 
-    /// The figures of the current (normally just finished) episode.
-    fn summary(&self) -> Self::Summary;
-
     /// The baselines every agent of the task is reported next to: one per constant action,
     /// then the task's rules, by name.
     fn baselines() -> Vec<(String, PolicyFactory<Self>)>;
@@ -194,7 +217,9 @@ pub trait Task: Env + Sized + 'static {
     fn scene(&self) -> Option<Scene<'_>>;
 
     /// The ego's path so far in this episode.
-    fn trajectory(&self) -> &[Point];
+    fn trajectory(&self) -> &[Point] {
+        &self.episode().trajectory
+    }
 
     /// Turns drawing the layers on or off (off: observations carry empty layers; the
     /// episodes themselves do not change).
@@ -203,6 +228,28 @@ pub trait Task: Env + Sized + 'static {
     /// The newest frame of layers the recording shows of an episode, if any.
     fn recorded_layers(&self) -> Option<LayerFrame<'_>> {
         None
+    }
+}
+
+/// What a task prepares once (map, layouts, renderers) and shares with every environment.
+pub trait TaskSetup: Debug + Send + Sync + 'static {
+    /// The task's settings.
+    type Config;
+
+    /// Prepares the task on `map` (None for a task that makes its own road), with the
+    /// observer that draws a camera view's layers.
+    fn prepare(
+        map: Option<Arc<Map>>,
+        config: Self::Config,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError>;
+
+    /// The map the task drives on.
+    fn map(&self) -> &Map;
+
+    /// The roundabouts of the map the task runs on (their ids); empty for none.
+    fn roundabouts(&self) -> Vec<u32> {
+        Vec::new()
     }
 }
 
@@ -305,6 +352,11 @@ impl<E> TaskPolicy<E> for ConstantAction {
         actions.clear();
         actions.resize(envs.len(), self.0);
     }
+}
+
+/// The map task `task` drives on, or the error of a task that needs one given none.
+pub(crate) fn required_map(map: Option<Arc<Map>>, task: TaskId) -> Result<Arc<Map>, SimError> {
+    map.ok_or_else(|| SimError::Map(format!("{} needs a map", task.info().title)))
 }
 
 /// Fails with the first of `values` (settings by name) that is not a positive number.

@@ -51,15 +51,15 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
+use crate::env::{Observation, ObservationSpec, Outcome};
 use crate::error::SimError;
 use crate::kinematics::{Bicycle, advance_speed, direction};
 use crate::observer::SceneObserver;
 use crate::scene::{Actor, ActorKind, OrientedBox, Scene};
 use crate::synthetic::straight_road;
 use crate::tasks::{
-    ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
-    baselines_with_rule, check_positive,
+    ConditionChoice, Driving, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSetup,
+    TaskSummary, baselines_with_rule, check_positive,
 };
 use crate::world::TrafficLevel;
 
@@ -411,6 +411,23 @@ pub struct ObstacleSetup {
     ego_path: Vec<Point>,
 }
 
+impl TaskSetup for ObstacleSetup {
+    type Config = ObstacleConfig;
+
+    /// On its own straight road: `map` is not used.
+    fn prepare(
+        _: Option<Arc<Map>>,
+        config: ObstacleConfig,
+        _: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
+        ObstacleSetup::new(config)
+    }
+
+    fn map(&self) -> &Map {
+        &self.map
+    }
+}
+
 impl ObstacleSetup {
     pub fn new(config: ObstacleConfig) -> Result<Arc<Self>, SimError> {
         config.validate()?;
@@ -430,10 +447,6 @@ impl ObstacleSetup {
 
     pub fn config(&self) -> &ObstacleConfig {
         &self.config
-    }
-
-    pub fn map(&self) -> &Map {
-        &self.map
     }
 }
 
@@ -586,41 +599,6 @@ impl ObstacleAvoidance {
         self.lidar = scan(&self.config.lidar, self.sensor(), self.ego.heading, &boxes);
     }
 
-    fn observation(&self) -> Observation {
-        let c = &self.config;
-        let centre = self.ego.centre();
-        let (lon, lat) = self.lidar.map_or((1.0, 0.0), |h| {
-            (
-                h.longitudinal_m / c.lidar.range_m,
-                h.lateral_m / c.lidar.window_lateral_m,
-            )
-        });
-        let mut scalars = vec![
-            (self.distance_to_destination() / c.destination_m).clamp(-1.0, 1.5),
-            (centre.y / c.lane_width_m).clamp(-1.5, 1.5),
-            (self.ego.heading / 30f64.to_radians()).clamp(-3.0, 3.0),
-            self.speed_mps / c.cruise_speed_mps(),
-            lon,
-            lat,
-        ];
-        if c.motion_inputs {
-            let (lateral_rate, longitudinal_rate) = match (self.lidar, self.previous_lidar) {
-                (Some(now), Some(before)) => (
-                    (now.lateral_m - before.lateral_m) / c.policy_step_s,
-                    (now.longitudinal_m - before.longitudinal_m) / c.policy_step_s,
-                ),
-                _ => (0.0, 0.0),
-            };
-            // Over 5 m/s (a brisk crossing) and over the cruise speed.
-            scalars.push((lateral_rate / 5.0).clamp(-2.0, 2.0));
-            scalars.push((longitudinal_rate / c.cruise_speed_mps()).clamp(-2.0, 2.0));
-        }
-        Observation {
-            layers: Vec::new(),
-            scalars: scalars.iter().map(|&v| v as f32).collect(),
-        }
-    }
-
     /// The main reward's potential at the ego's distance `d` (normalised reward).
     fn potential(&self, d: f64) -> f64 {
         study_main_reward(d, self.config.destination_m) / self.config.normalised.scale
@@ -716,8 +694,12 @@ impl ObstacleAvoidance {
     }
 }
 
-impl Env for ObstacleAvoidance {
-    fn observation_spec(&self) -> ObservationSpec {
+impl Driving for ObstacleAvoidance {
+    type Summary = ObstacleSummary;
+    type Action = Action;
+    const FALLBACK: Action = Action::Brake;
+
+    fn spec(&self) -> ObservationSpec {
         ObservationSpec {
             channels: 0,
             height: 0,
@@ -731,15 +713,13 @@ impl Env for ObstacleAvoidance {
         }
     }
 
-    fn action_count(&self) -> usize {
-        Action::ALL.len()
+    episode_in_field!();
+
+    fn started(&self) -> bool {
+        self.obstacle.is_some()
     }
 
-    fn action_names(&self) -> &'static [&'static str] {
-        &Action::NAMES
-    }
-
-    fn reset(&mut self, seed: u64) -> Observation {
+    fn begin(&mut self, seed: u64) {
         let c = self.config.clone();
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         // Every draw is made whatever the scenario, so a seed gives the same static and
@@ -800,15 +780,9 @@ impl Env for ObstacleAvoidance {
         self.episode.reset(Some(self.ego.centre()));
         self.lidar = None;
         self.rescan();
-        self.observation()
     }
 
-    fn step(&mut self, action: usize) -> Step {
-        if self.episode.ended() || self.obstacle.is_none() {
-            // After the end, or never reset.
-            return self.episode.finished_step(self.observation());
-        }
-        let action = Action::from_index(action).unwrap_or(Action::Brake);
+    fn decide(&mut self, action: Action) -> (f64, Option<Outcome>) {
         let before = self.distance_to_destination().max(0.0);
         let was_stopped = self.speed_mps <= self.config.stop_speed_mps;
         let mut outcome = None;
@@ -829,7 +803,57 @@ impl Env for ObstacleAvoidance {
         self.rescan();
         let stopped_now = !was_stopped && self.speed_mps <= self.config.stop_speed_mps;
         let reward = self.reward(before, stopped_now);
-        self.episode.step(self.observation(), reward, outcome)
+        (reward, outcome)
+    }
+
+    fn observe(&self) -> Observation {
+        let c = &self.config;
+        let centre = self.ego.centre();
+        let (lon, lat) = self.lidar.map_or((1.0, 0.0), |h| {
+            (
+                h.longitudinal_m / c.lidar.range_m,
+                h.lateral_m / c.lidar.window_lateral_m,
+            )
+        });
+        let mut scalars = vec![
+            (self.distance_to_destination() / c.destination_m).clamp(-1.0, 1.5),
+            (centre.y / c.lane_width_m).clamp(-1.5, 1.5),
+            (self.ego.heading / 30f64.to_radians()).clamp(-3.0, 3.0),
+            self.speed_mps / c.cruise_speed_mps(),
+            lon,
+            lat,
+        ];
+        if c.motion_inputs {
+            let (lateral_rate, longitudinal_rate) = match (self.lidar, self.previous_lidar) {
+                (Some(now), Some(before)) => (
+                    (now.lateral_m - before.lateral_m) / c.policy_step_s,
+                    (now.longitudinal_m - before.longitudinal_m) / c.policy_step_s,
+                ),
+                _ => (0.0, 0.0),
+            };
+            // Over 5 m/s (a brisk crossing) and over the cruise speed.
+            scalars.push((lateral_rate / 5.0).clamp(-2.0, 2.0));
+            scalars.push((longitudinal_rate / c.cruise_speed_mps()).clamp(-2.0, 2.0));
+        }
+        Observation {
+            layers: Vec::new(),
+            scalars: scalars.iter().map(|&v| v as f32).collect(),
+        }
+    }
+
+    fn summary(&self) -> ObstacleSummary {
+        ObstacleSummary {
+            outcome: self.episode.final_outcome(),
+            kind: self
+                .obstacle
+                .as_ref()
+                .map_or(ObstacleKind::Parked, |(k, _)| *k),
+            steps: self.episode.steps,
+            episode_return: self.episode.episode_return,
+            mean_speed_mps: self.episode.mean(self.speed_sum),
+            stopping_gap_m: self.stopping_gap_m,
+            min_gap_m: self.min_gap_m,
+        }
     }
 }
 
@@ -839,24 +863,10 @@ const CROSSING_OBSTACLE: &str = "crossing obstacle";
 impl Task for ObstacleAvoidance {
     type Config = ObstacleConfig;
     type Setup = ObstacleSetup;
-    type Summary = ObstacleSummary;
     /// The obstacles the episodes get.
     type Condition = Scenario;
 
     const ID: TaskId = TaskId::ObstacleAvoidance;
-
-    /// On its own straight road: `map` is not used.
-    fn setup(
-        _: Option<Arc<Map>>,
-        config: ObstacleConfig,
-        _: Option<Arc<dyn SceneObserver>>,
-    ) -> Result<Arc<ObstacleSetup>, SimError> {
-        ObstacleSetup::new(config)
-    }
-
-    fn map(setup: &ObstacleSetup) -> &Map {
-        setup.map()
-    }
 
     /// The config's scenario, whatever the traffic (there is none).
     fn training_env(setup: &Arc<ObstacleSetup>, _: TrafficLevel) -> Self {
@@ -896,21 +906,6 @@ impl Task for ObstacleAvoidance {
         Scenario::Mixed
     }
 
-    fn summary(&self) -> ObstacleSummary {
-        ObstacleSummary {
-            outcome: self.episode.final_outcome(),
-            kind: self
-                .obstacle
-                .as_ref()
-                .map_or(ObstacleKind::Parked, |(k, _)| *k),
-            steps: self.episode.steps,
-            episode_return: self.episode.episode_return,
-            mean_speed_mps: self.episode.mean(self.speed_sum),
-            stopping_gap_m: self.stopping_gap_m,
-            min_gap_m: self.min_gap_m,
-        }
-    }
-
     fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
         baselines_with_rule::<Self, PassOrYield>(&Action::NAMES, "rule: pass or yield")
     }
@@ -924,10 +919,6 @@ impl Task for ObstacleAvoidance {
             ego: 0,
             ego_path: &self.setup.ego_path,
         })
-    }
-
-    fn trajectory(&self) -> &[Point] {
-        &self.episode.trajectory
     }
 }
 
@@ -1010,6 +1001,7 @@ impl TaskPolicy<ObstacleAvoidance> for PassOrYield {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::Env;
     use crate::eval::{TaskResult, run_episodes};
 
     fn env(scenario: Scenario) -> ObstacleAvoidance {

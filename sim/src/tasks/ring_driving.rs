@@ -44,10 +44,10 @@ use serde::{Deserialize, Serialize};
 
 use super::roundabouts::{EgoView, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
 use super::{
-    ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
-    baselines_with_rule, check_positive,
+    ConditionChoice, Driving, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSetup,
+    TaskSummary, baselines_with_rule, check_positive,
 };
-use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
+use crate::env::{Observation, ObservationSpec, Outcome};
 use crate::error::SimError;
 use crate::kinematics::Bicycle;
 use crate::observer::{CameraViewConfig, SceneObserver, View, checked_observer};
@@ -55,7 +55,7 @@ use crate::path::wrap_angle;
 use crate::render::{BevConfig, BevRenderer};
 use crate::roundabout::{LayoutConfig, RingRoute};
 use crate::scene::Scene;
-use crate::world::{EgoCommand, EgoConfig, TrafficConfig, TrafficLevel, World};
+use crate::world::{CalibratedWorld, EgoCommand, EgoConfig, TrafficConfig, TrafficLevel, World};
 
 actions! {
     /// The three actions, by index.
@@ -291,17 +291,25 @@ impl RingDrivingSetup {
         config: RingDrivingConfig,
         observer: Option<Arc<dyn SceneObserver>>,
     ) -> Result<Arc<Self>, SimError> {
-        validate(&config)?;
-        let camera = match config.view {
-            View::CameraSegmentation => Some(config.camera_view()?),
-            View::Bev | View::Scalars => None,
-        };
-        let observer = checked_observer("agent.roundabout_driving", config.view, camera, observer)?;
-        Self::prepare(map, config, observer)
+        Self::prepare(Some(map), config, observer)
     }
 }
 
 impl RoundaboutTaskConfig for RingDrivingConfig {
+    const TASK: TaskId = TaskId::RoundaboutDriving;
+
+    fn checked(
+        &self,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Option<Arc<dyn SceneObserver>>, SimError> {
+        validate(self)?;
+        let camera = match self.view {
+            View::CameraSegmentation => Some(self.camera_view()?),
+            View::Bev | View::Scalars => None,
+        };
+        checked_observer("agent.roundabout_driving", self.view, camera, observer)
+    }
+
     fn layout(&self) -> &LayoutConfig {
         &self.layout
     }
@@ -315,6 +323,14 @@ impl RoundaboutTaskConfig for RingDrivingConfig {
     }
     fn roundabout(&self) -> Option<maps::RoundaboutId> {
         self.roundabout.map(maps::RoundaboutId)
+    }
+
+    fn world_mut(&mut self) -> (&mut TrafficConfig, &mut LayoutConfig) {
+        (&mut self.traffic, &mut self.layout)
+    }
+
+    fn roundabout_mut(&mut self) -> &mut Option<u32> {
+        &mut self.roundabout
     }
 }
 
@@ -482,21 +498,6 @@ impl RingDriving {
             .unwrap_or(SteerAction::Forward)
     }
 
-    fn observation(&self) -> Observation {
-        let speed = self
-            .world
-            .as_ref()
-            .and_then(|w| Some(w.vehicles()[w.ego_index()?].speed))
-            .unwrap_or(0.0);
-        Observation {
-            layers: self.view.layers(),
-            scalars: vec![
-                (speed / self.config.speed_scale_mps) as f32,
-                (self.steer / self.action_steer()) as f32,
-            ],
-        }
-    }
-
     /// Draws the current scene: the first frame of an episode, or the next one.
     fn render(&mut self, first: bool) {
         let scene = self
@@ -573,20 +574,22 @@ fn pursuit_steer(world: &World, ego: usize, cfg: &EgoConfig) -> f64 {
         .pure_pursuit(target, cfg.max_steer_rad)
 }
 
-impl Env for RingDriving {
-    fn observation_spec(&self) -> ObservationSpec {
+impl Driving for RingDriving {
+    type Summary = RingDrivingSummary;
+    type Action = SteerAction;
+    const FALLBACK: SteerAction = SteerAction::Forward;
+
+    fn spec(&self) -> ObservationSpec {
         self.setup.observation_spec()
     }
 
-    fn action_count(&self) -> usize {
-        SteerAction::ALL.len()
+    episode_in_field!();
+
+    fn started(&self) -> bool {
+        self.world.is_some()
     }
 
-    fn action_names(&self) -> &'static [&'static str] {
-        &SteerAction::NAMES
-    }
-
-    fn reset(&mut self, seed: u64) -> Observation {
+    fn begin(&mut self, seed: u64) {
         let c = &self.config;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let (roundabout, route_index) = self.setup.roundabouts.draw_route(&mut rng);
@@ -629,20 +632,12 @@ impl Env for RingDriving {
         self.distance_sum_m = 0.0;
         self.speed_sum_mps = 0.0;
         self.render(true);
-        self.observation()
     }
 
-    fn step(&mut self, action: usize) -> Step {
-        let world = if self.episode.ended() {
-            None
-        } else {
-            self.world.take()
+    fn decide(&mut self, action: SteerAction) -> (f64, Option<Outcome>) {
+        let Some(mut world) = self.world.take() else {
+            return (0.0, Some(self.episode.final_outcome()));
         };
-        let Some(mut world) = world else {
-            // After the end, or never reset.
-            return self.episode.finished_step(self.observation());
-        };
-        let action = SteerAction::from_index(action).unwrap_or(SteerAction::Forward);
         self.steer = self.next_steer(action);
         world.step_ego(EgoCommand {
             accel: None,
@@ -651,57 +646,57 @@ impl Env for RingDriving {
         let (reward, outcome) = self.resolve(&mut world);
         self.world = Some(world);
         self.render(false);
-        self.episode.step(self.observation(), reward, outcome)
+        (reward, outcome)
+    }
+
+    fn observe(&self) -> Observation {
+        let speed = self
+            .world
+            .as_ref()
+            .and_then(|w| Some(w.vehicles()[w.ego_index()?].speed))
+            .unwrap_or(0.0);
+        Observation {
+            layers: self.view.layers(),
+            scalars: vec![
+                (speed / self.config.speed_scale_mps) as f32,
+                (self.steer / self.action_steer()) as f32,
+            ],
+        }
+    }
+
+    fn summary(&self) -> RingDrivingSummary {
+        let steps = self.episode.steps;
+        let n = steps.max(1) as f64;
+        RingDrivingSummary {
+            outcome: self.episode.final_outcome(),
+            steps,
+            episode_return: self.episode.episode_return,
+            mean_angle_deviation_deg: self.angle_sum_deg / n,
+            mean_distance_deviation_m: self.distance_sum_m / n,
+            episode_length_s: steps as f64 * self.config.traffic.step_s,
+            mean_speed_kmh: self.speed_sum_mps / n * 3.6,
+        }
     }
 }
 
 impl Task for RingDriving {
     type Config = RingDrivingConfig;
     type Setup = RingDrivingSetup;
-    type Summary = RingDrivingSummary;
     /// The traffic level.
     type Condition = TrafficLevel;
 
     const ID: TaskId = TaskId::RoundaboutDriving;
 
-    fn setup(
-        map: Option<Arc<Map>>,
-        config: RingDrivingConfig,
-        observer: Option<Arc<dyn SceneObserver>>,
-    ) -> Result<Arc<RingDrivingSetup>, SimError> {
-        let map = map.ok_or_else(|| SimError::Map("roundabout driving needs a map".into()))?;
-        RingDrivingSetup::with_observer(map, config, observer)
-    }
-
-    fn map(setup: &RingDrivingSetup) -> &Map {
-        setup.map()
-    }
-
-    fn roundabouts(setup: &RingDrivingSetup) -> Vec<u32> {
-        setup.layouts().map(|l| l.roundabout.0).collect()
-    }
-
-    fn in_world(
-        config: &RingDrivingConfig,
-        world: &crate::world::CalibratedWorld,
-    ) -> Option<RingDrivingConfig> {
-        let mut config = config.clone();
-        world.apply(&mut config.traffic, &mut config.layout);
-        Some(config)
+    fn in_world(config: &RingDrivingConfig, world: &CalibratedWorld) -> Option<RingDrivingConfig> {
+        Some(config.in_world(world))
     }
 
     fn on_roundabout(config: &RingDrivingConfig, id: u32) -> Option<RingDrivingConfig> {
-        Some(RingDrivingConfig {
-            roundabout: Some(id),
-            ..config.clone()
-        })
+        Some(config.on_roundabout(id))
     }
 
     fn camera_view(config: &RingDrivingConfig) -> Option<&CameraViewConfig> {
-        match config.view {
-            View::CameraSegmentation => config.camera.as_ref(),
-            View::Bev | View::Scalars => None,
-        }
+        config.view.camera(config.camera.as_ref())
     }
 
     fn camera_mut(config: &mut RingDrivingConfig) -> Option<&mut CameraViewConfig> {
@@ -736,20 +731,6 @@ impl Task for RingDriving {
         traffic
     }
 
-    fn summary(&self) -> RingDrivingSummary {
-        let steps = self.episode.steps;
-        let n = steps.max(1) as f64;
-        RingDrivingSummary {
-            outcome: self.episode.final_outcome(),
-            steps,
-            episode_return: self.episode.episode_return,
-            mean_angle_deviation_deg: self.angle_sum_deg / n,
-            mean_distance_deviation_m: self.distance_sum_m / n,
-            episode_length_s: steps as f64 * self.config.traffic.step_s,
-            mean_speed_kmh: self.speed_sum_mps / n * 3.6,
-        }
-    }
-
     fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
         baselines_with_rule::<Self, PursuitRule>(
             &SteerAction::NAMES,
@@ -764,10 +745,6 @@ impl Task for RingDriving {
             self.start_time_s,
             None,
         )
-    }
-
-    fn trajectory(&self) -> &[Point] {
-        &self.episode.trajectory
     }
 
     /// Turns drawing the layers (bird's-eye or camera) on or off.
@@ -793,6 +770,7 @@ impl TaskPolicy<RingDriving> for PursuitRule {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use crate::env::Env;
     use crate::eval::{TaskResult, run_episodes};
     use crate::tasks::ConstantAction;
     use crate::test_maps;

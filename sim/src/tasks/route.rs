@@ -40,7 +40,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::env::{Env, Observation, ObservationSpec, Outcome, Step};
+use crate::env::{Observation, ObservationSpec, Outcome};
 use crate::error::SimError;
 use crate::kinematics::{Bicycle, advance_speed, direction};
 use crate::observer::{CameraViewConfig, SceneObserver, View, checked_observer};
@@ -51,8 +51,8 @@ use crate::seed::derive_seed;
 use crate::tasks::ring_driving::SteerAction;
 use crate::tasks::roundabouts::EgoView;
 use crate::tasks::{
-    ConditionChoice, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSummary,
-    baselines_with_rule,
+    ConditionChoice, Driving, Episode, PolicyFactory, Task, TaskId, TaskPolicy, TaskSetup,
+    TaskSummary, baselines_with_rule, required_map,
 };
 use crate::world::{Driver, DriverConfig, EgoConfig, TrafficLevel};
 
@@ -272,6 +272,22 @@ pub struct RouteSetup {
     renderer: Option<BevRenderer>,
     /// Draws the layers of a camera view.
     observer: Option<Arc<dyn SceneObserver>>,
+}
+
+impl TaskSetup for RouteSetup {
+    type Config = RouteConfig;
+
+    fn prepare(
+        map: Option<Arc<Map>>,
+        config: RouteConfig,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
+        RouteSetup::with_observer(required_map(map, TaskId::RouteFollowing)?, config, observer)
+    }
+
+    fn map(&self) -> &Map {
+        &self.map
+    }
 }
 
 impl RouteSetup {
@@ -638,37 +654,6 @@ impl RouteFollowing {
             .min_by(|a, b| a.0.total_cmp(&b.0))
     }
 
-    fn observation(&self) -> Observation {
-        let config = self.config();
-        let path = &self.route().path;
-        let centre = self.bike.centre();
-        let axis = direction(self.bike.heading);
-        let mut scalars = Vec::with_capacity(config.lookahead_m.len() + 5);
-        for &ahead in &config.lookahead_m {
-            let (p, _) = path.pose_at((self.s + ahead).min(path.length()));
-            // Lateral distance of the route in the ego's frame, over 5 m.
-            scalars.push((p.sub(centre).dot(axis.perp()) / 5.0) as f32);
-        }
-        scalars.push((self.route().half_width(self.s) / 2.0) as f32);
-        scalars.push((self.speed / config.max_speed_mps()) as f32);
-        scalars.push((self.steer / config.ego.max_steer_rad) as f32);
-        let nearest = self
-            .others
-            .iter()
-            .map(|o| self.other_pose(o).0.sub(centre))
-            .filter(|rel| rel.norm() < NEAR_M)
-            .min_by(|a, b| a.norm().total_cmp(&b.norm()));
-        let (x, y) = nearest.map_or((1.0, 0.0), |rel| {
-            (rel.dot(axis) / NEAR_M, rel.dot(axis.perp()) / NEAR_M)
-        });
-        scalars.push(x as f32);
-        scalars.push(y as f32);
-        Observation {
-            layers: self.view.as_ref().map(EgoView::layers).unwrap_or_default(),
-            scalars,
-        }
-    }
-
     fn summary_now(&self) -> RouteSummary {
         let length = self.route().path.length();
         let steps = self.episode.steps.max(1) as f64;
@@ -799,20 +784,22 @@ impl RouteFollowing {
     }
 }
 
-impl Env for RouteFollowing {
-    fn observation_spec(&self) -> ObservationSpec {
+impl Driving for RouteFollowing {
+    type Summary = RouteSummary;
+    type Action = SteerAction;
+    const FALLBACK: SteerAction = SteerAction::Forward;
+
+    fn spec(&self) -> ObservationSpec {
         self.setup.observation_spec()
     }
 
-    fn action_count(&self) -> usize {
-        SteerAction::ALL.len()
+    episode_in_field!();
+
+    fn started(&self) -> bool {
+        true
     }
 
-    fn action_names(&self) -> &'static [&'static str] {
-        &SteerAction::NAMES
-    }
-
-    fn reset(&mut self, seed: u64) -> Observation {
+    fn begin(&mut self, seed: u64) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let want_held_out = self.split == RouteSplit::HeldOut;
         let candidates: Vec<usize> = (0..self.setup.routes.len())
@@ -835,20 +822,16 @@ impl Env for RouteFollowing {
         self.in_lane_steps = 0;
         self.speed_sum = 0.0;
         self.draw(true);
-        self.observation()
     }
 
-    fn step(&mut self, action: usize) -> Step {
-        if self.episode.ended() {
-            return self.episode.finished_step(self.observation());
-        }
+    fn decide(&mut self, action: SteerAction) -> (f64, Option<Outcome>) {
         // The setup, not its config, is cloned: an Arc, cheap at every step.
         let setup = Arc::clone(&self.setup);
         let config = &setup.config;
-        let change = match SteerAction::from_index(action) {
-            Some(SteerAction::ForwardLeft) => config.steer_increment_rad,
-            Some(SteerAction::ForwardRight) => -config.steer_increment_rad,
-            _ => 0.0,
+        let change = match action {
+            SteerAction::ForwardLeft => config.steer_increment_rad,
+            SteerAction::ForwardRight => -config.steer_increment_rad,
+            SteerAction::Forward => 0.0,
         };
         let max_steer = config.ego.max_steer_rad;
         let new_steer = (self.steer + change).clamp(-max_steer, max_steer);
@@ -882,7 +865,42 @@ impl Env for RouteFollowing {
             reward += config.reward.terminal_penalty;
         }
         self.draw(false);
-        self.episode.step(self.observation(), reward, outcome)
+        (reward, outcome)
+    }
+
+    fn observe(&self) -> Observation {
+        let config = self.config();
+        let path = &self.route().path;
+        let centre = self.bike.centre();
+        let axis = direction(self.bike.heading);
+        let mut scalars = Vec::with_capacity(config.lookahead_m.len() + 5);
+        for &ahead in &config.lookahead_m {
+            let (p, _) = path.pose_at((self.s + ahead).min(path.length()));
+            // Lateral distance of the route in the ego's frame, over 5 m.
+            scalars.push((p.sub(centre).dot(axis.perp()) / 5.0) as f32);
+        }
+        scalars.push((self.route().half_width(self.s) / 2.0) as f32);
+        scalars.push((self.speed / config.max_speed_mps()) as f32);
+        scalars.push((self.steer / config.ego.max_steer_rad) as f32);
+        let nearest = self
+            .others
+            .iter()
+            .map(|o| self.other_pose(o).0.sub(centre))
+            .filter(|rel| rel.norm() < NEAR_M)
+            .min_by(|a, b| a.norm().total_cmp(&b.norm()));
+        let (x, y) = nearest.map_or((1.0, 0.0), |rel| {
+            (rel.dot(axis) / NEAR_M, rel.dot(axis.perp()) / NEAR_M)
+        });
+        scalars.push(x as f32);
+        scalars.push(y as f32);
+        Observation {
+            layers: self.view.as_ref().map(EgoView::layers).unwrap_or_default(),
+            scalars,
+        }
+    }
+
+    fn summary(&self) -> RouteSummary {
+        self.summary_now()
     }
 }
 
@@ -892,30 +910,13 @@ const TRAINING_ROUTES: &str = "training routes";
 impl Task for RouteFollowing {
     type Config = RouteConfig;
     type Setup = RouteSetup;
-    type Summary = RouteSummary;
     /// The routes episodes draw from.
     type Condition = RouteSplit;
 
     const ID: TaskId = TaskId::RouteFollowing;
 
-    fn setup(
-        map: Option<Arc<Map>>,
-        config: RouteConfig,
-        observer: Option<Arc<dyn SceneObserver>>,
-    ) -> Result<Arc<RouteSetup>, SimError> {
-        let map = map.ok_or_else(|| SimError::Map("route following needs a map".into()))?;
-        RouteSetup::with_observer(map, config, observer)
-    }
-
-    fn map(setup: &RouteSetup) -> &Map {
-        setup.map()
-    }
-
     fn camera_view(config: &RouteConfig) -> Option<&CameraViewConfig> {
-        match config.view {
-            View::CameraSegmentation => config.camera.as_ref(),
-            View::Bev | View::Scalars => None,
-        }
+        config.view.camera(config.camera.as_ref())
     }
 
     fn camera_mut(config: &mut RouteConfig) -> Option<&mut CameraViewConfig> {
@@ -953,10 +954,6 @@ impl Task for RouteFollowing {
 
     fn recorded_condition(_: TrafficLevel) -> RouteSplit {
         RouteSplit::HeldOut
-    }
-
-    fn summary(&self) -> RouteSummary {
-        self.summary_now()
     }
 
     fn baselines() -> Vec<(String, PolicyFactory<Self>)> {
@@ -997,10 +994,6 @@ impl Task for RouteFollowing {
             ego: 0,
             ego_path: self.route().path.outline(),
         })
-    }
-
-    fn trajectory(&self) -> &[Point] {
-        &self.episode.trajectory
     }
 
     /// Nothing to draw with `view = "scalars"`.
@@ -1044,6 +1037,7 @@ impl TaskPolicy<RouteFollowing> for PursuitRule {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::env::Env;
     use crate::eval::run_episodes;
 
     /// The bundled campus (ODbL, in the repository), with a small route pool.
