@@ -1,27 +1,33 @@
 //! Driving tasks: actions, reward, termination, metrics and baselines on the traffic world.
 //!
-//! Every task implements [`Task`]: an [`Env`] with its settings table, its setup (prepared
-//! once per map and shared by its environments), its evaluation conditions, the summary of
-//! an episode and its baselines. The registry ([`registry`]) lists them by name; the one
-//! evaluation harness ([`crate::eval`]) runs any of them with any [`TaskPolicy`]: a learned
-//! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
+//! Every task implements [`Task`]: a [`Driving`] (what differs between tasks in an episode:
+//! its actions, how an episode begins, what one decision does and earns, what the agent
+//! observes, the episode's figures), run as an [`Env`] by the one episode runner
+//! ([`runner`]), with its settings table, its setup ([`TaskSetup`]: prepared once per map
+//! and shared by its environments), its evaluation conditions and its baselines. The
+//! registry ([`registry`]) lists them by name; the one evaluation harness ([`crate::eval`])
+//! runs any of them with any [`TaskPolicy`]: a learned policy (reading only the
+//! observations), a [`ConstantAction`], or a task's own rule.
 //!
 //! - [`insertion`]: roundabout insertion (its evaluation: [`crate::eval::insertion`]);
 //!   [`ring_driving`]: roundabout driving; [`route`]: campus route following;
-//!   [`obstacle`]: obstacle avoidance. Each file holds what is the task's own: its actions,
-//!   reward, termination, metrics and rules.
-//! - What they share: [`episode`] (the bookkeeping of an episode), `actions!` (action
-//!   tables), [`roundabouts`] (the prepared roundabouts and the ego's view of the
-//!   roundabout tasks), [`motion_inputs`].
+//!   [`obstacle`]: obstacle avoidance. Each folder holds what is the task's own, by
+//!   concern: its settings (`config.rs`), its episodes (`mod.rs`), its [`Task`] items
+//!   (`task.rs`), and for insertion its reward (`reward.rs`).
+//! - What they share: [`runner`] (the episode runner), [`episode`] (the bookkeeping of an
+//!   episode), `actions!` (action tables), [`roundabouts`] (the prepared roundabouts and
+//!   the ego's view of the roundabout tasks), [`motion_inputs`], [`id`] (the tasks' names).
 
 /// Declares a task's actions: an enum indexed from 0 with `ALL`, `NAMES` (the serde names,
-/// as written in files and recordings) and `from_index`, and its [`runner::ActionSet`].
+/// as written in files and recordings) and `from_index`, and its [`runner::ActionSet`] with
+/// the action an index out of range means (`fallback`).
 macro_rules! actions {
     (
         $(#[$meta:meta])*
         $vis:vis enum $name:ident {
             $($(#[$variant_meta:meta])* $variant:ident = $index:literal => $label:literal,)+
         }
+        fallback $fallback:ident;
     ) => {
         $(#[$meta])*
         #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -40,6 +46,7 @@ macro_rules! actions {
 
         impl $crate::tasks::runner::ActionSet for $name {
             const NAMES: &'static [&'static str] = &$name::NAMES;
+            const FALLBACK: $name = $name::$fallback;
 
             fn from_index(i: usize) -> Option<$name> {
                 $name::from_index(i)
@@ -58,6 +65,51 @@ macro_rules! episode_in_field {
 
         fn episode_mut(&mut self) -> &mut $crate::tasks::Episode {
             &mut self.episode
+        }
+    };
+}
+
+/// [`TaskSummary::outcome`] and [`TaskSummary::episode_return`] of a summary that keeps them
+/// in its `outcome` and `episode_return` fields.
+macro_rules! outcome_and_return_fields {
+    () => {
+        fn outcome(&self) -> $crate::env::Outcome {
+            self.outcome
+        }
+
+        fn episode_return(&self) -> f64 {
+            self.episode_return
+        }
+    };
+}
+
+/// The accessors of [`roundabouts::RoundaboutTaskConfig`] for settings that keep them in
+/// their `layout`, `observation` (the bird's-eye view), `traffic` and `roundabout` fields.
+macro_rules! roundabout_fields {
+    () => {
+        fn layout(&self) -> &$crate::roundabout::LayoutConfig {
+            &self.layout
+        }
+
+        fn bev(&self) -> &$crate::render::BevConfig {
+            &self.observation
+        }
+
+        fn roundabout(&self) -> Option<maps::RoundaboutId> {
+            self.roundabout.map(maps::RoundaboutId)
+        }
+
+        fn world_mut(
+            &mut self,
+        ) -> (
+            &mut $crate::world::TrafficConfig,
+            &mut $crate::roundabout::LayoutConfig,
+        ) {
+            (&mut self.traffic, &mut self.layout)
+        }
+
+        fn roundabout_mut(&mut self) -> &mut Option<u32> {
+            &mut self.roundabout
         }
     };
 }
@@ -357,6 +409,26 @@ impl<E> TaskPolicy<E> for ConstantAction {
 /// The map task `task` drives on, or the error of a task that needs one given none.
 pub(crate) fn required_map(map: Option<Arc<Map>>, task: TaskId) -> Result<Arc<Map>, SimError> {
     map.ok_or_else(|| SimError::Map(format!("{} needs a map", task.info().title)))
+}
+
+/// `actions` (cleared first) with `decide`'s action for each environment: a rule's
+/// [`TaskPolicy::act`].
+pub(crate) fn act_each<E>(envs: &[&E], actions: &mut Vec<usize>, decide: impl Fn(&E) -> usize) {
+    actions.clear();
+    actions.extend(envs.iter().map(|env| decide(env)));
+}
+
+/// What a steering rule picks for the wheel angle `wanted` (positive to the left) with the
+/// band `(low, high)` kept: `[left, straight, right]`'s first above the band, third below,
+/// second within.
+pub(crate) fn turn<A>(wanted: f64, (low, high): (f64, f64), [left, straight, right]: [A; 3]) -> A {
+    if wanted > high {
+        left
+    } else if wanted < low {
+        right
+    } else {
+        straight
+    }
 }
 
 /// Fails with the first of `values` (settings by name) that is not a positive number.

@@ -83,7 +83,25 @@ pub struct RoundaboutSetup<C> {
     pub(crate) observer: Option<Arc<dyn SceneObserver>>,
 }
 
-impl<C: RoundaboutTaskConfig> RoundaboutSetup<C> {
+impl<C: RoundaboutTaskConfig + Send + Sync + 'static> RoundaboutSetup<C> {
+    /// Prepares every roundabout of `map` that has a route through its ring. Fails when
+    /// there is none, or the configuration is invalid. A camera view needs its observer:
+    /// see [`RoundaboutSetup::with_observer`].
+    pub fn new(map: Arc<Map>, config: C) -> Result<Arc<Self>, SimError> {
+        Self::with_observer(map, config, None)
+    }
+
+    /// As [`RoundaboutSetup::new`], with the observer that draws the layers of
+    /// `view = "camera-segmentation"` (required by that view, unused by the others; its
+    /// frame shape must be the `camera` table's).
+    pub fn with_observer(
+        map: Arc<Map>,
+        config: C,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
+        Self::prepare(Some(map), config, observer)
+    }
+
     /// Prepares every roundabout of `map` that has a route through its ring for `config`
     /// (already validated, with its checked `observer`); fails when there is none.
     pub(crate) fn build(

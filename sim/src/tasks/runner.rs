@@ -12,6 +12,9 @@ pub trait ActionSet: Copy + Send + 'static {
     /// The serde names, in index order.
     const NAMES: &'static [&'static str];
 
+    /// What an index out of range means.
+    const FALLBACK: Self;
+
     /// The action of index `i`, if any.
     fn from_index(i: usize) -> Option<Self>;
 }
@@ -24,9 +27,6 @@ pub trait Driving: Send {
     /// The figures of one episode (outcome, return, the task's metrics).
     type Summary: TaskSummary;
 
-    /// What an action index out of range does.
-    const FALLBACK: Self::Action;
-
     /// The shape of the task's observations.
     fn spec(&self) -> ObservationSpec;
 
@@ -36,16 +36,14 @@ pub trait Driving: Send {
     /// The same, to change.
     fn episode_mut(&mut self) -> &mut Episode;
 
-    /// Whether an episode has begun: a step before one ends at once.
-    fn started(&self) -> bool;
-
     /// Starts a new episode; everything random in it is drawn from `seed`, and the
     /// episode's bookkeeping starts at the ego's place.
     fn begin(&mut self, seed: u64);
 
     /// One decision of a running episode: the task's steps under `action` and their
-    /// bookkeeping; its reward and how the episode ended (None while it runs).
-    fn decide(&mut self, action: Self::Action) -> (f64, Option<Outcome>);
+    /// bookkeeping; its reward and how the episode ended (None while it runs). None, with
+    /// nothing changed, when no episode has begun.
+    fn decide(&mut self, action: Self::Action) -> Option<(f64, Option<Outcome>)>;
 
     /// What the agent observes now.
     fn observe(&self) -> Observation;
@@ -73,19 +71,22 @@ impl<D: Driving> Env for D {
     }
 
     fn step(&mut self, action: usize) -> Step {
-        if self.episode().ended() || !self.started() {
-            // After the end, or never reset.
-            return self.episode().finished_step(self.observe());
-        }
-        let action = D::Action::from_index(action).unwrap_or(D::FALLBACK);
-        let (reward, outcome) = self.decide(action);
+        let action = D::Action::from_index(action).unwrap_or(D::Action::FALLBACK);
+        let decided = if self.episode().ended() {
+            None
+        } else {
+            self.decide(action)
+        };
         let observation = self.observe();
-        self.episode_mut().step(observation, reward, outcome)
+        match decided {
+            Some((reward, outcome)) => self.episode_mut().step(observation, reward, outcome),
+            // After the end, or never reset.
+            None => self.episode().finished_step(observation),
+        }
     }
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
@@ -95,6 +96,7 @@ mod tests {
             Stay = 0 => "stay",
             Go = 1 => "go",
         }
+        fallback Stay;
     }
 
     #[derive(Clone, serde::Serialize)]
@@ -123,7 +125,6 @@ mod tests {
     impl Driving for Walk {
         type Action = Toy;
         type Summary = Walked;
-        const FALLBACK: Toy = Toy::Stay;
 
         fn spec(&self) -> ObservationSpec {
             ObservationSpec {
@@ -134,21 +135,21 @@ mod tests {
             }
         }
         episode_in_field!();
-        fn started(&self) -> bool {
-            self.started
-        }
         fn begin(&mut self, _: u64) {
             self.started = true;
             self.at = 0;
             self.episode.reset(None);
         }
-        fn decide(&mut self, action: Toy) -> (f64, Option<Outcome>) {
+        fn decide(&mut self, action: Toy) -> Option<(f64, Option<Outcome>)> {
+            if !self.started {
+                return None;
+            }
             self.episode.steps += 1;
             if action == Toy::Go {
                 self.at += 1;
             }
             let reached = (self.at == 3).then_some(Outcome::Reached);
-            (f64::from(u8::from(action == Toy::Go)), reached)
+            Some((f64::from(u8::from(action == Toy::Go)), reached))
         }
         fn observe(&self) -> Observation {
             Observation {

@@ -277,14 +277,6 @@ pub fn observation_spec(bev: &BevConfig) -> ObservationSpec {
 /// the routes of each usable roundabout and its static bird's-eye raster.
 pub type InsertionSetup = RoundaboutSetup<InsertionConfig>;
 
-impl InsertionSetup {
-    /// Prepares every roundabout of `map` that has a route from an entry through the ring
-    /// to an exit. Fails when there is none, or the configuration is invalid.
-    pub fn new(map: Arc<Map>, config: InsertionConfig) -> Result<Arc<Self>, SimError> {
-        Self::prepare(Some(map), config, None)
-    }
-}
-
 impl RoundaboutTaskConfig for InsertionConfig {
     const TASK: TaskId = TaskId::RoundaboutInsertion;
 
@@ -297,28 +289,11 @@ impl RoundaboutTaskConfig for InsertionConfig {
         Ok(None)
     }
 
-    fn layout(&self) -> &LayoutConfig {
-        &self.layout
-    }
-
-    fn bev(&self) -> &BevConfig {
-        &self.observation
-    }
-
     fn observation_spec(&self) -> ObservationSpec {
         self.observation.observation_spec(self.scalar_count())
     }
-    fn roundabout(&self) -> Option<maps::RoundaboutId> {
-        self.roundabout.map(maps::RoundaboutId)
-    }
 
-    fn world_mut(&mut self) -> (&mut TrafficConfig, &mut LayoutConfig) {
-        (&mut self.traffic, &mut self.layout)
-    }
-
-    fn roundabout_mut(&mut self) -> &mut Option<u32> {
-        &mut self.roundabout
-    }
+    roundabout_fields!();
 }
 
 pub(super) fn validate(c: &InsertionConfig) -> Result<(), SimError> {

@@ -22,7 +22,6 @@
 
 use std::sync::Arc;
 
-use maps::Map;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -30,8 +29,8 @@ use serde::{Deserialize, Serialize};
 pub use super::motion_inputs::{MOTION_SCALARS, MotionHistory};
 use super::roundabouts::{EgoView, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
 use super::{
-    ConditionChoice, Driving, Episode, LayerFrame, PolicyFactory, Task, TaskId, TaskSetup,
-    TaskSummary, check_positive,
+    ConditionChoice, Driving, Episode, LayerFrame, PolicyFactory, Task, TaskId, TaskSummary,
+    check_positive,
 };
 use crate::baselines::{Baseline, InsertionPolicy};
 use crate::env::{Observation, ObservationSpec, Outcome};
@@ -57,6 +56,7 @@ actions! {
         NotPermitted = 1 => "not_permitted",
         Caution = 2 => "caution",
     }
+    fallback NotPermitted;
 }
 
 /// The roundabout insertion task as an [`Env`].
@@ -324,17 +324,26 @@ impl RoundaboutInsertion {
 impl Driving for RoundaboutInsertion {
     type Summary = EpisodeSummary;
     type Action = Action;
-    const FALLBACK: Action = Action::NotPermitted;
+
+    fn summary(&self) -> EpisodeSummary {
+        EpisodeSummary {
+            outcome: self.episode.final_outcome(),
+            steps: self.episode.steps,
+            episode_return: self.episode.episode_return,
+            mean_speed_mps: self.episode.mean(self.speed_sum),
+            time_to_enter_s: self.entered_at_s,
+            aggressiveness: self.aggressiveness,
+            close_following_steps: self.close_following_steps,
+            cut_in_steps: self.cut_in_steps,
+            entry_lag_s: self.entry_lag_s,
+        }
+    }
 
     fn spec(&self) -> ObservationSpec {
         self.setup.observation_spec()
     }
 
     episode_in_field!();
-
-    fn started(&self) -> bool {
-        self.world.is_some()
-    }
 
     fn begin(&mut self, seed: u64) {
         self.episode_seed = seed;
@@ -386,10 +395,8 @@ impl Driving for RoundaboutInsertion {
         self.render(true);
     }
 
-    fn decide(&mut self, action: Action) -> (f64, Option<Outcome>) {
-        let Some(mut world) = self.world.take() else {
-            return (0.0, Some(self.episode.final_outcome()));
-        };
+    fn decide(&mut self, action: Action) -> Option<(f64, Option<Outcome>)> {
+        let mut world = self.world.take()?;
         self.decisions += 1;
         let (mut reward, mut outcome) = (0.0, None);
         for _ in 0..self.config.action_repeat {
@@ -416,7 +423,7 @@ impl Driving for RoundaboutInsertion {
         if !self.config.frames_every_step() {
             self.render(false);
         }
-        (reward, outcome)
+        Some((reward, outcome))
     }
 
     fn observe(&self) -> Observation {
@@ -438,20 +445,6 @@ impl Driving for RoundaboutInsertion {
             scalars.extend(self.motion.scalars(self.config.speed_scale_mps));
         }
         Observation { layers, scalars }
-    }
-
-    fn summary(&self) -> EpisodeSummary {
-        EpisodeSummary {
-            outcome: self.episode.final_outcome(),
-            steps: self.episode.steps,
-            episode_return: self.episode.episode_return,
-            mean_speed_mps: self.episode.mean(self.speed_sum),
-            time_to_enter_s: self.entered_at_s,
-            aggressiveness: self.aggressiveness,
-            close_following_steps: self.close_following_steps,
-            cut_in_steps: self.cut_in_steps,
-            entry_lag_s: self.entry_lag_s,
-        }
     }
 }
 

@@ -143,13 +143,7 @@ impl Task for RoundaboutInsertion {
 }
 
 impl TaskSummary for EpisodeSummary {
-    fn outcome(&self) -> Outcome {
-        self.outcome
-    }
-
-    fn episode_return(&self) -> f64 {
-        self.episode_return
-    }
+    outcome_and_return_fields!();
 
     fn metrics(&self) -> Vec<(&'static str, f64)> {
         vec![
