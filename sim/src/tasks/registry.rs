@@ -2,9 +2,9 @@
 //! `task.json` says), description, settings table and [`Task`] type, through which
 //! everything else is built (setup, environments, conditions, baselines).
 //!
-//! Adding a task: its file in [`crate::tasks`] implementing [`Task`], a variant of
-//! [`TaskId`], its [`TaskInfo`] in [`TASKS`] and its arm in [`TaskId::visit`]; in `pipeline`,
-//! its `[agent.<table>]` field of the agent config.
+//! Adding a task: its folder in [`crate::tasks`] implementing [`super::Driving`] and
+//! [`Task`], a variant of [`TaskId`], its [`TaskInfo`] in [`TASKS`] and its arm in
+//! [`TaskId::visit`]; in `pipeline`, its `[agent.<table>]` field of the agent config.
 
 use super::Task;
 use super::insertion::RoundaboutInsertion;

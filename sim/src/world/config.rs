@@ -211,7 +211,7 @@ pub struct TrafficConfig {
     pub vehicle_width_m: Span,
     pub drivers: DriverConfig,
     /// The `recorded` level's arrivals per entry (Poisson, each at its own rate; see
-    /// [`World::spawn_flows`]): every entry listed gets its flow, the others none.
+    /// `World::spawn_flows`): every entry listed gets its flow, the others none.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub flows: Vec<EntryFlow>,
     /// Entry capacity from gap acceptance (set by `sim calibrate`): the named levels become
@@ -267,7 +267,7 @@ impl TrafficConfig {
         Ok(())
     }
 
-    /// Whether arrivals come per entry ([`World::spawn_flows`]): at the `recorded` level, or
+    /// Whether arrivals come per entry (`World::spawn_flows`): at the `recorded` level, or
     /// at any level with a capacity model.
     pub fn per_entry_arrivals(&self) -> bool {
         self.level == TrafficLevel::Recorded || self.capacity.is_some()

@@ -235,7 +235,7 @@ impl Driver {
     /// The least time a circulating vehicle must be away from the merge point for this
     /// driver to enter, given the time it needs to clear that point and to reach its yield
     /// line, s: its critical gap left when it reaches the line but never less than the time
-    /// to clear the merge point and [`CLEARING_MARGIN_S`] (a driver with a measured critical
+    /// to clear the merge point and `CLEARING_MARGIN_S` (a driver with a measured critical
     /// gap), or the time to clear the merge point plus its margin.
     pub fn needed_lag_s(&self, clearing_s: f64, to_line_s: f64) -> f64 {
         match self.critical_gap {

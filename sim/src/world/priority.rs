@@ -244,10 +244,10 @@ impl World {
     }
 
     /// On a multi-lane ring, the car vehicle `i` waits for before its next lane change
-    /// ([`World::next_lane_change`]), if any: a committed car coming along another lane of
+    /// (`World::next_lane_change`), if any: a committed car coming along another lane of
     /// the ring road that `i` leaves, towards the same junction, and not clearly in front
     /// of it; it is in the way when it would be beside `i`, or behind it closer than
-    /// [`LANE_CHANGE_GAP_M`] plus [`LANE_CHANGE_HEADWAY_S`] of its speed (positions
+    /// `LANE_CHANGE_GAP_M` plus `LANE_CHANGE_HEADWAY_S` of its speed (positions
     /// compared as distances to where each leaves the road). A car about to change lanes
     /// there too that has not started goes first when its front is ahead (the lower index
     /// on a tie), so two such never wait for each other. A driver that could no longer

@@ -102,7 +102,7 @@ pub struct InsertionConfig {
     /// logs give them too (from the vehicle's recorded track and the other road users).
     pub rule_inputs: bool,
     /// Adds the ego's own recent motion to the scalar inputs, after the rule inputs
-    /// ([`MOTION_SCALARS`], [`super::motion_inputs`]): its speed 0.5, 1 and 2 s ago and the
+    /// ([`MOTION_SCALARS`], [`crate::tasks::motion_inputs`]): its speed 0.5, 1 and 2 s ago and the
     /// slowest it has been this episode, over `speed_scale_mps`. Off by default.
     pub motion_inputs: bool,
     /// World steps (`traffic.step_s` each) per decision: the action is held and the rewards

@@ -59,7 +59,7 @@ actions! {
     fallback NotPermitted;
 }
 
-/// The roundabout insertion task as an [`Env`].
+/// The roundabout insertion task as an [`crate::Env`].
 #[derive(Debug)]
 pub struct RoundaboutInsertion {
     setup: Arc<InsertionSetup>,
@@ -153,7 +153,7 @@ impl RoundaboutInsertion {
         self.episode_seed
     }
 
-    /// Decisions taken so far in the episode ([`Env::step`] calls).
+    /// Decisions taken so far in the episode ([`crate::Env::step`] calls).
     pub fn decisions(&self) -> usize {
         self.decisions
     }

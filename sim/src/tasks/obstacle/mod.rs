@@ -80,7 +80,7 @@ actions! {
     fallback Brake;
 }
 
-/// The obstacle-avoidance task as an [`Env`].
+/// The obstacle-avoidance task as an [`crate::Env`].
 #[derive(Debug)]
 pub struct ObstacleAvoidance {
     setup: Arc<ObstacleSetup>,

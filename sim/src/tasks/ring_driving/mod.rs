@@ -93,7 +93,7 @@ pub struct LaneDeviation {
     pub distance_m: f64,
 }
 
-/// The roundabout driving task as an [`Env`] and a [`Task`].
+/// The roundabout driving task as an [`crate::Env`] and a [`Task`].
 #[derive(Debug)]
 pub struct RingDriving {
     setup: Arc<RingDrivingSetup>,

@@ -87,7 +87,7 @@ struct Mover {
     width: f64,
 }
 
-/// The route-following task as an [`Env`].
+/// The route-following task as an [`crate::Env`].
 #[derive(Debug)]
 pub struct RouteFollowing {
     setup: Arc<RouteSetup>,
