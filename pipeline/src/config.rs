@@ -129,28 +129,25 @@ impl Config {
         Ok(config)
     }
 
-    /// `[traffic]` with the recorded flows of `[recorded]`, when the config gives a world.
-    pub fn world_traffic(&self) -> Option<sim::world::TrafficConfig> {
-        let mut traffic = self.traffic.clone()?;
-        if let Some(recorded) = &self.recorded {
-            traffic.flows = recorded.flows.clone();
+    /// The traffic world this config gives (`[traffic]`, `[recorded]`'s flows, `[layout]`),
+    /// which replaces the tasks' own.
+    pub fn world(&self) -> sim::world::CalibratedWorld {
+        sim::world::CalibratedWorld {
+            traffic: self.traffic.clone(),
+            flows: self.recorded.as_ref().map(|r| r.flows.clone()),
+            layout: self.layout,
         }
-        Some(traffic)
     }
 
-    /// Puts `[traffic]` (with `[recorded]`'s flows) and `[layout]` (when given) into every
-    /// task's settings that runs the traffic world.
+    /// Puts the config's traffic world ([`Config::world`]) into every task's settings that
+    /// runs the traffic world ([`sim::tasks::Task::in_world`]).
     pub fn apply_world(&mut self) {
-        if let Some(traffic) = self.world_traffic() {
-            self.agent.task.traffic = traffic.clone();
-            self.agent.roundabout_driving.traffic = traffic;
-        } else if let Some(recorded) = &self.recorded {
-            self.agent.task.traffic.flows = recorded.flows.clone();
-            self.agent.roundabout_driving.traffic.flows = recorded.flows.clone();
-        }
-        if let Some(layout) = self.layout {
-            self.agent.task.layout = layout;
-            self.agent.roundabout_driving.layout = layout;
+        let world = self.world();
+        for id in sim::tasks::TaskId::ALL {
+            id.visit(crate::tasks::InWorld {
+                agent: &mut self.agent,
+                world: &world,
+            });
         }
     }
 
@@ -290,6 +287,7 @@ mod tests {
         let gap = traffic
             .drivers
             .critical_gap
+            .measured()
             .ok_or("the calibration has no critical gap")?;
         assert!((1.0..10.0).contains(&gap.median_s), "{gap:?}");
         assert!(traffic.capacity.is_some(), "no capacity model");

@@ -11,8 +11,8 @@ use maps::Map;
 use serde::{Deserialize, Serialize};
 use sim::SimError;
 use sim::observer::{CameraViewConfig, SceneObserver};
-use sim::tasks::Task;
 use sim::tasks::insertion::InsertionConfig;
+use sim::tasks::{Task, TaskVisitor};
 
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
@@ -48,6 +48,16 @@ impl AgentConfig {
         ]
     }
 
+    /// The tables of the tasks' settings, to change in place.
+    fn task_tables_mut(&mut self) -> [&mut dyn Any; 4] {
+        [
+            &mut self.task,
+            &mut self.route,
+            &mut self.roundabout_driving,
+            &mut self.obstacle,
+        ]
+    }
+
     /// The settings table of task `T` (the table of its config type).
     pub fn task_table<T: Task>(&self) -> T::Config {
         self.task_tables()
@@ -55,6 +65,27 @@ impl AgentConfig {
             .find_map(|table| table.downcast_ref::<T::Config>())
             .cloned()
             .unwrap_or_default()
+    }
+}
+
+/// Puts a traffic world into task `T`'s settings table of an [`AgentConfig`] (what
+/// [`crate::config::Config::apply_world`] runs for every task).
+#[derive(Debug)]
+pub struct InWorld<'a> {
+    pub agent: &'a mut AgentConfig,
+    pub world: &'a sim::world::CalibratedWorld,
+}
+
+impl TaskVisitor for InWorld<'_> {
+    type Output = ();
+    fn visit<T: Task>(self) {
+        for table in self.agent.task_tables_mut() {
+            if let Some(config) = table.downcast_mut::<T::Config>()
+                && let Some(changed) = T::in_world(config, self.world)
+            {
+                *config = changed;
+            }
+        }
     }
 }
 

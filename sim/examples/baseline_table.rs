@@ -69,7 +69,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map_err(|e| format!("{map_path}: {e}"))?;
     let setup = InsertionSetup::new(Arc::new(map), config)?;
     let mut baselines = Baseline::STANDARD.to_vec();
-    if let Some(gap) = setup.config().traffic.drivers.critical_gap {
+    if let Some(gap) = setup.config().traffic.drivers.critical_gap.measured() {
         baselines.push(Baseline::CriticalGap {
             seconds: gap.median_s,
         });

@@ -29,6 +29,15 @@ pub enum View {
 }
 
 impl View {
+    /// The camera table of a task's config when this view is the camera's: what a task's
+    /// [`crate::tasks::Task::camera_view`] gives.
+    pub fn camera(self, camera: Option<&CameraViewConfig>) -> Option<&CameraViewConfig> {
+        match self {
+            View::CameraSegmentation => camera,
+            View::Bev | View::Scalars => None,
+        }
+    }
+
     /// The config value.
     pub fn name(self) -> &'static str {
         match self {

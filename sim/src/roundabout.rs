@@ -645,6 +645,10 @@ fn ring_core(
 /// crosses at most [`MAX_LANES_BEFORE_RING`] lanes before the ring, then only ring lanes;
 /// each connection between ring lanes of different ranks (a lane change) counts
 /// `lane_change_cost` metres on top of its length.
+///
+/// A search of its own rather than petgraph's: the states (lane, lanes crossed, in the ring)
+/// are made as it goes, and ties fall to the smaller state and the first predecessor found,
+/// which petgraph's `astar` (ties in heap order, lanes rather than connections) would not keep.
 fn shortest_through_ring(
     map: &Map,
     (ring, ranks): (&BTreeSet<LaneId>, &BTreeMap<LaneId, u8>),

@@ -33,3 +33,10 @@ pub fn shared_map(relative: &str) -> Option<Map> {
     }
     Some(maps::import_file(&path, &Default::default()).expect("shared map imports"))
 }
+
+/// The routes of montlake's roundabout with the default layout.
+#[allow(clippy::expect_used)]
+pub fn montlake_layout() -> std::sync::Arc<crate::roundabout::RoundaboutLayout> {
+    let layout = crate::roundabout::RoundaboutLayout::first_in(&montlake(), &Default::default());
+    std::sync::Arc::new(layout.expect("montlake has a roundabout"))
+}

@@ -21,7 +21,9 @@
 
 use serde::Serialize;
 use sim::roundabout::LayoutConfig;
-use sim::world::{CapacityModel, CriticalGap, EntryFlow, Span, TrafficConfig, TrafficLevel};
+use sim::world::{
+    CapacityModel, CriticalGap, EntryFlow, GapAcceptance, Span, TrafficConfig, TrafficLevel,
+};
 
 use crate::fit::{self, CriticalGapFit, FollowingSample, IdmFit, MeanFit};
 use crate::measure::Measurements;
@@ -218,7 +220,7 @@ pub fn calibrate(
         traffic.drivers.time_headway_s = around(d.time_headway_s, idm.time_headway_s);
         traffic.drivers.min_gap_m = around(d.min_gap_m, idm.min_gap_m);
     }
-    traffic.drivers.critical_gap = Some(CriticalGap {
+    traffic.drivers.critical_gap = GapAcceptance::Measured(CriticalGap {
         median_s: critical_gap.median_s,
         sigma: critical_gap.sigma,
     });
@@ -401,7 +403,7 @@ pub fn to_toml(c: &Calibration, source: &str, recordings: &[String]) -> String {
             "# median matched by simulation: the world's traffic, measured and fitted alike, gives {:.2} s\n",
             f.sim_critical_gap_s
         )),
-        d.critical_gap.map_or(g.median_s, |x| x.median_s),
+        d.critical_gap.measured().map_or(g.median_s, |x| x.median_s),
         g.sigma
     );
     out += "\n# The recordings' own arrival flows on this map's entry lanes, veh/h (`--traffic recorded`).\n[recorded]\n";
@@ -527,7 +529,7 @@ pub fn refine(
         let (mut lo, mut hi) = (0.5, 15.0);
         for _ in 0..REFINE_STEPS {
             let mid = (lo + hi) / 2.0;
-            traffic.drivers.critical_gap = Some(CriticalGap {
+            traffic.drivers.critical_gap = GapAcceptance::Measured(CriticalGap {
                 median_s: mid,
                 sigma,
             });
@@ -538,7 +540,7 @@ pub fn refine(
                 hi = mid;
             }
         }
-        traffic.drivers.critical_gap = Some(CriticalGap {
+        traffic.drivers.critical_gap = GapAcceptance::Measured(CriticalGap {
             median_s: (lo + hi) / 2.0,
             sigma,
         });
@@ -552,6 +554,7 @@ pub fn refine(
         critical_gap_median_s: traffic
             .drivers
             .critical_gap
+            .measured()
             .map_or(f64::NAN, |g| g.median_s),
         real_critical_gap_s: real_gap,
         sim_critical_gap_s: sim_gap,

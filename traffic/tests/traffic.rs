@@ -11,7 +11,7 @@ use std::sync::Arc;
 use common::shared_data;
 use maps::{Map, RoundaboutId};
 use sim::roundabout::{LayoutConfig, RoundaboutLayout};
-use sim::world::{CriticalGap, EntryFlow, TrafficConfig, TrafficLevel};
+use sim::world::{CriticalGap, EntryFlow, GapAcceptance, TrafficConfig, TrafficLevel};
 use traffic::calibrate::{calibrate, refine};
 use traffic::measure::{Measurements, RingGeometry, measure};
 use traffic::realism::compare;
@@ -37,7 +37,7 @@ fn known_world(map: &Map, median_s: f64, lateral: f64) -> (TrafficConfig, Layout
         spawn_clearance_m: 3.0,
         ..TrafficConfig::default()
     };
-    traffic.drivers.critical_gap = Some(CriticalGap {
+    traffic.drivers.critical_gap = GapAcceptance::Measured(CriticalGap {
         median_s,
         sigma: 0.3,
     });

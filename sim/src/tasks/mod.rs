@@ -1,27 +1,33 @@
 //! Driving tasks: actions, reward, termination, metrics and baselines on the traffic world.
 //!
-//! Every task implements [`Task`]: an [`Env`] with its settings table, its setup (prepared
-//! once per map and shared by its environments), its evaluation conditions, the summary of
-//! an episode and its baselines. The registry ([`registry`]) lists them by name; the one
-//! evaluation harness ([`crate::eval`]) runs any of them with any [`TaskPolicy`]: a learned
-//! policy (reading only the observations), a [`ConstantAction`], or a task's own rule.
+//! Every task implements [`Task`]: a [`Driving`] (what differs between tasks in an episode:
+//! its actions, how an episode begins, what one decision does and earns, what the agent
+//! observes, the episode's figures), run as an [`Env`] by the one episode runner
+//! ([`runner`]), with its settings table, its setup ([`TaskSetup`]: prepared once per map
+//! and shared by its environments), its evaluation conditions and its baselines. The
+//! registry ([`registry`]) lists them by name; the one evaluation harness ([`crate::eval`])
+//! runs any of them with any [`TaskPolicy`]: a learned policy (reading only the
+//! observations), a [`ConstantAction`], or a task's own rule.
 //!
-//! - [`insertion`]: roundabout insertion (its evaluation: [`insertion_eval`]);
+//! - [`insertion`]: roundabout insertion (its evaluation: [`crate::eval::insertion`]);
 //!   [`ring_driving`]: roundabout driving; [`route`]: campus route following;
-//!   [`obstacle`]: obstacle avoidance. Each file holds what is the task's own: its actions,
-//!   reward, termination, metrics and rules.
-//! - What they share: [`episode`] (the bookkeeping of an episode), `actions!` (action
-//!   tables), [`roundabouts`] (the prepared roundabouts and the ego's view of the
-//!   roundabout tasks), [`motion_inputs`].
+//!   [`obstacle`]: obstacle avoidance. Each folder holds what is the task's own, by
+//!   concern: its settings (`config.rs`), its episodes (`mod.rs`), its [`Task`] items
+//!   (`task.rs`), and for insertion its reward (`reward.rs`).
+//! - What they share: [`runner`] (the episode runner), [`episode`] (the bookkeeping of an
+//!   episode), `actions!` (action tables), [`roundabouts`] (the prepared roundabouts and
+//!   the ego's view of the roundabout tasks), [`motion_inputs`], [`id`] (the tasks' names).
 
 /// Declares a task's actions: an enum indexed from 0 with `ALL`, `NAMES` (the serde names,
-/// as written in files and recordings) and `from_index`.
+/// as written in files and recordings) and `from_index`, and its [`runner::ActionSet`] with
+/// the action an index out of range means (`fallback`).
 macro_rules! actions {
     (
         $(#[$meta:meta])*
         $vis:vis enum $name:ident {
             $($(#[$variant_meta:meta])* $variant:ident = $index:literal => $label:literal,)+
         }
+        fallback $fallback:ident;
     ) => {
         $(#[$meta])*
         #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -37,18 +43,87 @@ macro_rules! actions {
                 $name::ALL.get(i).copied()
             }
         }
+
+        impl $crate::tasks::runner::ActionSet for $name {
+            const NAMES: &'static [&'static str] = &$name::NAMES;
+            const FALLBACK: $name = $name::$fallback;
+
+            fn from_index(i: usize) -> Option<$name> {
+                $name::from_index(i)
+            }
+        }
+    };
+}
+
+/// [`runner::Driving::episode`] and [`runner::Driving::episode_mut`] of a task that keeps its episode in
+/// its `episode` field.
+macro_rules! episode_in_field {
+    () => {
+        fn episode(&self) -> &$crate::tasks::Episode {
+            &self.episode
+        }
+
+        fn episode_mut(&mut self) -> &mut $crate::tasks::Episode {
+            &mut self.episode
+        }
+    };
+}
+
+/// [`TaskSummary::outcome`] and [`TaskSummary::episode_return`] of a summary that keeps them
+/// in its `outcome` and `episode_return` fields.
+macro_rules! outcome_and_return_fields {
+    () => {
+        fn outcome(&self) -> $crate::env::Outcome {
+            self.outcome
+        }
+
+        fn episode_return(&self) -> f64 {
+            self.episode_return
+        }
+    };
+}
+
+/// The accessors of [`roundabouts::RoundaboutTaskConfig`] for settings that keep them in
+/// their `layout`, `observation` (the bird's-eye view), `traffic` and `roundabout` fields.
+macro_rules! roundabout_fields {
+    () => {
+        fn layout(&self) -> &$crate::roundabout::LayoutConfig {
+            &self.layout
+        }
+
+        fn bev(&self) -> &$crate::render::BevConfig {
+            &self.observation
+        }
+
+        fn roundabout(&self) -> Option<maps::RoundaboutId> {
+            self.roundabout.map(maps::RoundaboutId)
+        }
+
+        fn world_mut(
+            &mut self,
+        ) -> (
+            &mut $crate::world::TrafficConfig,
+            &mut $crate::roundabout::LayoutConfig,
+        ) {
+            (&mut self.traffic, &mut self.layout)
+        }
+
+        fn roundabout_mut(&mut self) -> &mut Option<u32> {
+            &mut self.roundabout
+        }
     };
 }
 
 pub mod episode;
+pub mod id;
 pub mod insertion;
-pub mod insertion_eval;
 pub mod motion_inputs;
 pub mod obstacle;
 pub mod registry;
 pub mod ring_driving;
 pub mod roundabouts;
 pub mod route;
+pub mod runner;
 
 use std::fmt::Debug;
 use std::sync::Arc;
@@ -58,13 +133,14 @@ use serde::de::DeserializeOwned;
 
 use maps::{Map, Point};
 
-use crate::env::{Env, Observation, Outcome};
+use crate::env::{Env, Observation};
 use crate::error::SimError;
-use crate::eval::{EvalHeader, EvalReport, Evaluation};
+use crate::eval::report::{EvalHeader, EvalReport, Evaluation, conditions_report};
 use crate::observer::{CameraViewConfig, SceneObserver};
 use crate::scene::Scene;
-use crate::world::TrafficLevel;
+use crate::world::{CalibratedWorld, TrafficLevel};
 
+pub use crate::eval::report::TaskSummary;
 pub use episode::Episode;
 pub use insertion::{
     Action, EpisodeSummary, InsertionConfig, InsertionSetup, InsertionState, RewardConfig,
@@ -77,15 +153,14 @@ pub use ring_driving::{
     RingRewardConfig, SteerAction,
 };
 pub use roundabouts::{EgoView, RoundaboutSet, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
+pub use runner::{ActionSet, Driving};
 
 /// A driving task: an [`Env`] with everything training and evaluating an agent on it needs.
-pub trait Task: Env + Sized + 'static {
+pub trait Task: Driving + Env + Sized + 'static {
     /// The task's `[agent.<table>]` settings, stored in an agent's `task.json`.
     type Config: Clone + Debug + Default + Serialize + DeserializeOwned + Send + Sync + 'static;
     /// What is prepared once (map, layouts, renderers) and shared by every environment.
-    type Setup: Debug + Send + Sync + 'static;
-    /// The figures of one episode (outcome, return, the task's metrics).
-    type Summary: TaskSummary;
+    type Setup: TaskSetup<Config = Self::Config>;
     /// One evaluation condition: a traffic level, a route split, an obstacle scenario, ...
     type Condition: Clone + Debug + Send + Sync;
 
@@ -98,15 +173,19 @@ pub trait Task: Env + Sized + 'static {
         map: Option<Arc<Map>>,
         config: Self::Config,
         observer: Option<Arc<dyn SceneObserver>>,
-    ) -> Result<Arc<Self::Setup>, SimError>;
+    ) -> Result<Arc<Self::Setup>, SimError> {
+        Self::Setup::prepare(map, config, observer)
+    }
 
     /// The map the task drives on.
-    fn map(setup: &Self::Setup) -> &Map;
+    fn map(setup: &Self::Setup) -> &Map {
+        setup.map()
+    }
 
     /// The roundabouts of the map the task runs on (their ids, as `map info` lists them);
     /// empty for a task that runs on no roundabout.
-    fn roundabouts(_setup: &Self::Setup) -> Vec<u32> {
-        Vec::new()
+    fn roundabouts(setup: &Self::Setup) -> Vec<u32> {
+        setup.roundabouts()
     }
 
     /// The camera table of `config` when it asks for `view = "camera-segmentation"`: what
@@ -132,13 +211,10 @@ pub trait Task: Env + Sized + 'static {
         None
     }
 
-    /// The task in another traffic world (`traffic` and `layout` replacing the config's, as a
-    /// calibration does); None when the task runs no traffic world.
-    fn in_world(
-        _config: &Self::Config,
-        _traffic: &crate::world::TrafficConfig,
-        _layout: &crate::roundabout::LayoutConfig,
-    ) -> Option<Self::Config> {
+    /// The task in the traffic world `world` (a calibration's, replacing what the config
+    /// gives of its own): how a calibrated world reaches the task for training and for
+    /// evaluation alike. None when the task runs no traffic world.
+    fn in_world(_config: &Self::Config, _world: &CalibratedWorld) -> Option<Self::Config> {
         None
     }
 
@@ -170,17 +246,14 @@ pub trait Task: Env + Sized + 'static {
             .unwrap_or_else(|| Self::recorded_condition(TrafficLevel::Medium))
     }
 
-    /// The files of an evaluation: by default a table of [`crate::eval::TaskResult`]s per
+    /// The files of an evaluation: by default a table of [`crate::eval::report::TaskResult`]s per
     /// condition.
     fn eval_report(
         header: &EvalHeader,
-        evaluation: &Evaluation<Self>,
+        evaluation: &Evaluation<Self::Condition, Self::Summary>,
     ) -> Result<EvalReport, SimError> {
-        crate::eval::conditions_report(header, evaluation)
+        conditions_report(header, evaluation, Self::condition_name)
     }
-
-    /// The figures of the current (normally just finished) episode.
-    fn summary(&self) -> Self::Summary;
 
     /// The baselines every agent of the task is reported next to: one per constant action,
     /// then the task's rules, by name.
@@ -196,7 +269,9 @@ pub trait Task: Env + Sized + 'static {
     fn scene(&self) -> Option<Scene<'_>>;
 
     /// The ego's path so far in this episode.
-    fn trajectory(&self) -> &[Point];
+    fn trajectory(&self) -> &[Point] {
+        &self.episode().trajectory
+    }
 
     /// Turns drawing the layers on or off (off: observations carry empty layers; the
     /// episodes themselves do not change).
@@ -205,6 +280,28 @@ pub trait Task: Env + Sized + 'static {
     /// The newest frame of layers the recording shows of an episode, if any.
     fn recorded_layers(&self) -> Option<LayerFrame<'_>> {
         None
+    }
+}
+
+/// What a task prepares once (map, layouts, renderers) and shares with every environment.
+pub trait TaskSetup: Debug + Send + Sync + 'static {
+    /// The task's settings.
+    type Config;
+
+    /// Prepares the task on `map` (None for a task that makes its own road), with the
+    /// observer that draws a camera view's layers.
+    fn prepare(
+        map: Option<Arc<Map>>,
+        config: Self::Config,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError>;
+
+    /// The map the task drives on.
+    fn map(&self) -> &Map;
+
+    /// The roundabouts of the map the task runs on (their ids); empty for none.
+    fn roundabouts(&self) -> Vec<u32> {
+        Vec::new()
     }
 }
 
@@ -235,16 +332,6 @@ pub struct LayerFrame<'a> {
     pub names: &'a [crate::render::Layer],
     pub width: usize,
     pub height: usize,
-}
-
-/// What an evaluation table reads from an episode's summary.
-pub trait TaskSummary: Clone + Send + Serialize {
-    fn outcome(&self) -> Outcome;
-    fn episode_return(&self) -> f64;
-    /// The task's own metrics, by name with their unit (e.g. `("mean angle deviation °", 12.0)`),
-    /// in the same order for every episode. A metric an episode cannot give (e.g. a
-    /// stopping distance when the ego never stopped) is NaN and left out of its mean.
-    fn metrics(&self) -> Vec<(&'static str, f64)>;
 }
 
 /// Makes one policy instance per chunk of episodes (policies are `Send`, not `Sync`).
@@ -316,6 +403,31 @@ impl<E> TaskPolicy<E> for ConstantAction {
     fn act(&mut self, envs: &[&E], _: &[&Observation], actions: &mut Vec<usize>) {
         actions.clear();
         actions.resize(envs.len(), self.0);
+    }
+}
+
+/// The map task `task` drives on, or the error of a task that needs one given none.
+pub(crate) fn required_map(map: Option<Arc<Map>>, task: TaskId) -> Result<Arc<Map>, SimError> {
+    map.ok_or_else(|| SimError::Map(format!("{} needs a map", task.info().title)))
+}
+
+/// `actions` (cleared first) with `decide`'s action for each environment: a rule's
+/// [`TaskPolicy::act`].
+pub(crate) fn act_each<E>(envs: &[&E], actions: &mut Vec<usize>, decide: impl Fn(&E) -> usize) {
+    actions.clear();
+    actions.extend(envs.iter().map(|env| decide(env)));
+}
+
+/// What a steering rule picks for the wheel angle `wanted` (positive to the left) with the
+/// band `(low, high)` kept: `[left, straight, right]`'s first above the band, third below,
+/// second within.
+pub(crate) fn turn<A>(wanted: f64, (low, high): (f64, f64), [left, straight, right]: [A; 3]) -> A {
+    if wanted > high {
+        left
+    } else if wanted < low {
+        right
+    } else {
+        straight
     }
 }
 

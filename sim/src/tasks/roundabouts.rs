@@ -8,19 +8,30 @@ use std::sync::Arc;
 use maps::{Map, RoundaboutId};
 use rand::Rng;
 
+use super::{TaskId, TaskSetup, required_map};
 use crate::env::ObservationSpec;
 use crate::error::SimError;
 use crate::observer::SceneObserver;
 use crate::render::{BevConfig, BevRenderer, FrameStack};
 use crate::roundabout::{LayoutConfig, RoundaboutLayout};
 use crate::scene::Scene;
-use crate::world::World;
+use crate::world::{CalibratedWorld, TrafficConfig, World};
 
 /// Width of the navigable corridor along every route, m (a wide car).
 const ROUTE_CORRIDOR_M: f64 = 2.0;
 
 /// The settings a task on a map's roundabouts prepares its [`RoundaboutSetup`] from.
 pub trait RoundaboutTaskConfig: Debug {
+    /// The task the settings are of.
+    const TASK: TaskId;
+
+    /// Checks the settings, and gives the observer the task keeps of `observer` (see
+    /// [`crate::observer::checked_observer`]).
+    fn checked(
+        &self,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Option<Arc<dyn SceneObserver>>, SimError>;
+
     /// How the routes through each roundabout are laid out.
     fn layout(&self) -> &LayoutConfig;
     /// The bird's-eye view (its raster also decides what is navigable).
@@ -31,6 +42,33 @@ pub trait RoundaboutTaskConfig: Debug {
     /// roundabout with a route through its ring.
     fn roundabout(&self) -> Option<RoundaboutId> {
         None
+    }
+
+    /// The traffic world's settings, to change in place.
+    fn world_mut(&mut self) -> (&mut TrafficConfig, &mut LayoutConfig);
+
+    /// The one roundabout the task runs on (None: every one), to change in place.
+    fn roundabout_mut(&mut self) -> &mut Option<u32>;
+
+    /// The settings in the traffic world `world` ([`crate::tasks::Task::in_world`]).
+    fn in_world(&self, world: &CalibratedWorld) -> Self
+    where
+        Self: Clone,
+    {
+        let mut config = self.clone();
+        let (traffic, layout) = config.world_mut();
+        world.apply(traffic, layout);
+        config
+    }
+
+    /// The settings on roundabout `id` only ([`crate::tasks::Task::on_roundabout`]).
+    fn on_roundabout(&self, id: u32) -> Self
+    where
+        Self: Clone,
+    {
+        let mut config = self.clone();
+        *config.roundabout_mut() = Some(id);
+        config
     }
 }
 
@@ -45,10 +83,28 @@ pub struct RoundaboutSetup<C> {
     pub(crate) observer: Option<Arc<dyn SceneObserver>>,
 }
 
-impl<C: RoundaboutTaskConfig> RoundaboutSetup<C> {
+impl<C: RoundaboutTaskConfig + Send + Sync + 'static> RoundaboutSetup<C> {
+    /// Prepares every roundabout of `map` that has a route through its ring. Fails when
+    /// there is none, or the configuration is invalid. A camera view needs its observer:
+    /// see [`RoundaboutSetup::with_observer`].
+    pub fn new(map: Arc<Map>, config: C) -> Result<Arc<Self>, SimError> {
+        Self::with_observer(map, config, None)
+    }
+
+    /// As [`RoundaboutSetup::new`], with the observer that draws the layers of
+    /// `view = "camera-segmentation"` (required by that view, unused by the others; its
+    /// frame shape must be the `camera` table's).
+    pub fn with_observer(
+        map: Arc<Map>,
+        config: C,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
+        Self::prepare(Some(map), config, observer)
+    }
+
     /// Prepares every roundabout of `map` that has a route through its ring for `config`
     /// (already validated, with its checked `observer`); fails when there is none.
-    pub(crate) fn prepare(
+    pub(crate) fn build(
         map: Arc<Map>,
         config: C,
         observer: Option<Arc<dyn SceneObserver>>,
@@ -80,6 +136,30 @@ impl<C: RoundaboutTaskConfig> RoundaboutSetup<C> {
 
     pub fn observation_spec(&self) -> ObservationSpec {
         self.config.observation_spec()
+    }
+}
+
+impl<C: RoundaboutTaskConfig + Send + Sync + 'static> TaskSetup for RoundaboutSetup<C> {
+    type Config = C;
+
+    /// Checks `config` and its observer ([`RoundaboutTaskConfig::checked`]), then prepares
+    /// every roundabout of `map` that has a route through its ring.
+    fn prepare(
+        map: Option<Arc<Map>>,
+        config: C,
+        observer: Option<Arc<dyn SceneObserver>>,
+    ) -> Result<Arc<Self>, SimError> {
+        let map = required_map(map, C::TASK)?;
+        let observer = config.checked(observer)?;
+        Self::build(map, config, observer)
+    }
+
+    fn map(&self) -> &Map {
+        self.roundabouts.map()
+    }
+
+    fn roundabouts(&self) -> Vec<u32> {
+        self.layouts().map(|l| l.roundabout.0).collect()
     }
 }
 

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use sim::Outcome;
 use sim::eval::{EvalHeader, EvalOptions, EvalReport, Evaluation, evaluate_agent};
-use sim::tasks::{ConditionChoice, Task, TaskSummary as _, TaskVisitor};
+use sim::tasks::{ConditionChoice, Task, TaskSummary, TaskVisitor};
 
 use super::EvalArgs;
 use crate::agent_folder::{LoadedAgent, TASK_FILE};
@@ -114,11 +114,11 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
             )
         })?;
     }
-    if let Some(traffic) = ctx.config.world_traffic() {
+    let world = ctx.config.world();
+    if !world.is_empty() {
         // A calibration given with --config: the agent is judged in that world.
-        let layout = ctx.config.layout.unwrap_or_default();
-        if let Some(c) = T::in_world(&config, &traffic, &layout) {
-            progress.note("in the traffic world of --config ([traffic], [layout])");
+        if let Some(c) = T::in_world(&config, &world) {
+            progress.note("in the traffic world of --config ([traffic], [recorded], [layout])");
             config = c;
         }
     }
@@ -177,7 +177,7 @@ fn eval_task<T: Task>(run: Eval<'_, '_>) -> Result<()> {
 
 /// `eval.png`: the share of episodes each policy reached, crashed in and ran out of time
 /// in, over every condition evaluated.
-fn eval_png<T: Task>(evaluation: &Evaluation<T>, task: &str) -> Result<Vec<u8>> {
+fn eval_png<C, S: TaskSummary>(evaluation: &Evaluation<C, S>, task: &str) -> Result<Vec<u8>> {
     let outcomes: Vec<PolicyOutcomes> = evaluation
         .policies
         .iter()

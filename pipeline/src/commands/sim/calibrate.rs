@@ -78,6 +78,7 @@ pub fn run(ctx: &Context<'_>, args: &CalibrateArgs) -> Result<()> {
             .traffic
             .drivers
             .critical_gap
+            .measured()
             .map_or(g.median_s, |x| x.median_s),
         calibration.report.follow_up_headway.mean,
         calibration.report.lateral_accel_mps2,

@@ -256,7 +256,7 @@ struct PolicyResult {
 /// condition and policy, and `episodes.csv`.
 pub(crate) fn report(
     header: &EvalHeader,
-    evaluation: &Evaluation<RoundaboutInsertion>,
+    evaluation: &Evaluation<Condition, EpisodeSummary>,
 ) -> Result<EvalReport, SimError> {
     let conditions = &evaluation.conditions;
     let rows: Vec<(String, Vec<ConditionResult>)> = evaluation
