@@ -13,6 +13,7 @@
 mod eval;
 mod offline;
 mod train;
+mod train_inputs;
 
 use std::path::PathBuf;
 
