@@ -146,6 +146,21 @@ pub fn split_items(
     counts
 }
 
+/// Groups named wrongly ([`assign_groups`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum GroupsError {
+    #[error("group `{0}` is named for both val and test")]
+    Both(String),
+    #[error("no item is in group `{group}` (groups: {}{})", known.join(", "), if *more { ", ..." } else { "" })]
+    Missing {
+        group: String,
+        /// The first groups the items have.
+        known: Vec<String>,
+        /// There are more groups than `known` lists.
+        more: bool,
+    },
+}
+
 /// Sets every item's `split` by naming groups: the groups in `val` go to validation, those
 /// in `test` to test, every other group to training (CamVid's sequences, for a protocol
 /// that never scores on a sequence seen in training). Errors name a group that no item
@@ -155,22 +170,17 @@ pub fn assign_groups(
     by: GroupBy,
     val: &[String],
     test: &[String],
-) -> Result<SplitCounts, String> {
+) -> Result<SplitCounts, GroupsError> {
     if let Some(both) = val.iter().find(|g| test.contains(g)) {
-        return Err(format!("group `{both}` is named for both val and test"));
+        return Err(GroupsError::Both(both.clone()));
     }
     let groups = groups(items, by);
     if let Some(missing) = val.iter().chain(test).find(|g| !groups.contains_key(*g)) {
-        let known: Vec<&str> = groups.keys().take(12).map(String::as_str).collect();
-        return Err(format!(
-            "no item is in group `{missing}` (groups: {}{})",
-            known.join(", "),
-            if groups.len() > known.len() {
-                ", ..."
-            } else {
-                ""
-            }
-        ));
+        return Err(GroupsError::Missing {
+            group: missing.clone(),
+            known: groups.keys().take(12).cloned().collect(),
+            more: groups.len() > 12,
+        });
     }
     let mut counts = SplitCounts {
         groups: groups.len(),
@@ -251,6 +261,7 @@ mod tests {
         }
         let err = assign_groups(&mut v, GroupBy::Prefix, &["seq9".into()], &[])
             .expect_err("no item is in seq9");
+        let err = err.to_string();
         assert!(err.contains("seq9") && err.contains("seq0"), "{err}");
         assert!(
             assign_groups(&mut v, GroupBy::Prefix, &["seq1".into()], &["seq1".into()]).is_err()

@@ -39,9 +39,21 @@ pub struct Counts {
     pub closed_loop: Vec<LoopTally>,
 }
 
+/// Why a shard's counts cannot be added to shard 0's ([`Counts::absorb`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CountsDiffer {
+    #[error("other policies ({theirs:?}) than shard 0 ({ours:?})")]
+    Policies {
+        theirs: Vec<String>,
+        ours: Vec<String>,
+    },
+    #[error("another closed-loop setting")]
+    ClosedLoop,
+}
+
 impl Counts {
     /// Adds a later shard's counts; the policies must be the same.
-    pub fn absorb(&mut self, other: &Counts) -> Result<(), String> {
+    pub fn absorb(&mut self, other: &Counts) -> Result<(), CountsDiffer> {
         let names = |c: &Counts| {
             c.policies
                 .iter()
@@ -49,11 +61,10 @@ impl Counts {
                 .collect::<Vec<_>>()
         };
         if names(self) != names(other) {
-            return Err(format!(
-                "other policies ({:?}) than shard 0 ({:?})",
-                names(other),
-                names(self)
-            ));
+            return Err(CountsDiffer::Policies {
+                theirs: names(other),
+                ours: names(self),
+            });
         }
         self.approaches += other.approaches;
         self.approaches_with_a_stop += other.approaches_with_a_stop;
@@ -64,7 +75,7 @@ impl Counts {
             mine.absorb(theirs);
         }
         if self.closed_loop.len() != other.closed_loop.len() {
-            return Err("another closed-loop setting".into());
+            return Err(CountsDiffer::ClosedLoop);
         }
         for (mine, theirs) in self.closed_loop.iter_mut().zip(&other.closed_loop) {
             mine.absorb(theirs);
@@ -178,7 +189,9 @@ pub fn merge_shard_dirs(dirs: &[PathBuf]) -> Result<Report, MergeError> {
                 "other settings (logs, map, agent or behaviour cloning)".into(),
             ));
         }
-        counts.absorb(&file.counts).map_err(differs)?;
+        counts
+            .absorb(&file.counts)
+            .map_err(|e| differs(e.to_string()))?;
     }
     Ok(Report::new(settings, counts))
 }

@@ -28,29 +28,43 @@ pub const MODEL_CONFIG_FILE: &str = "model.json";
 pub const MODEL_RECORD_FILE: &str = "model.bpk";
 pub const MODEL_SAFETENSORS_FILE: &str = "model.safetensors";
 
+/// Why a settings file could not be read ([`load_config`]); the caller names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigFileError {
+    #[error("{0}")]
+    Read(#[from] std::io::Error),
+    #[error("{0}")]
+    Json(#[from] serde_json::Error),
+    #[error("{0}")]
+    Toml(String),
+    #[error("unknown setting `{0}`")]
+    UnknownSetting(String),
+}
+
 /// Reads a config file (`model.json`, `train.json`, or settings written as TOML) written by
 /// this or an earlier version: keys the file lacks (settings added since it was written) take
 /// their values from `defaults`, the value that reproduces the earlier behaviour. burn's
 /// `Config::load` would reject such a file. A `.toml` file is read as TOML, whose keys must
 /// all be settings (a typo is an error, not a silent default); anything else as JSON. Errors
 /// are messages for the caller to attach the path to.
-pub fn load_config<C>(path: &Path, defaults: &C) -> std::result::Result<C, String>
+pub fn load_config<C>(path: &Path, defaults: &C) -> std::result::Result<C, ConfigFileError>
 where
     C: serde::Serialize + serde::de::DeserializeOwned,
 {
-    let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+    let text = std::fs::read_to_string(path)?;
     let is_toml = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     if !is_toml {
-        let file: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+        let file: serde_json::Value = serde_json::from_str(&text)?;
         return config_from_value(file, defaults);
     }
-    let table: toml::Table = toml::from_str(&text).map_err(|e| e.message().to_owned())?;
-    let file = serde_json::to_value(table).map_err(|e| e.to_string())?;
-    let known = serde_json::to_value(defaults).map_err(|e| e.to_string())?;
+    let table: toml::Table =
+        toml::from_str(&text).map_err(|e| ConfigFileError::Toml(e.message().to_owned()))?;
+    let file = serde_json::to_value(table)?;
+    let known = serde_json::to_value(defaults)?;
     if let Some(key) = unknown_key(&known, &file, "") {
-        return Err(format!("unknown setting `{key}`"));
+        return Err(ConfigFileError::UnknownSetting(key));
     }
     config_from_value(file, defaults)
 }
@@ -75,13 +89,13 @@ fn unknown_key(
 pub fn config_from_value<C>(
     value: serde_json::Value,
     defaults: &C,
-) -> std::result::Result<C, String>
+) -> std::result::Result<C, ConfigFileError>
 where
     C: serde::Serialize + serde::de::DeserializeOwned,
 {
-    let mut merged = serde_json::to_value(defaults).map_err(|e| e.to_string())?;
+    let mut merged = serde_json::to_value(defaults)?;
     overlay(&mut merged, value);
-    serde_json::from_value(merged).map_err(|e| e.to_string())
+    Ok(serde_json::from_value(merged)?)
 }
 
 /// Puts `top` over `base`: objects key by key (recursively), anything else replaced.

@@ -7,6 +7,7 @@ use burn::config::Config;
 
 use super::data::Augment;
 use super::error::{Result, SegmenterError};
+use super::files::ConfigFileError;
 use super::loss::HardPixels;
 use super::model::PspNetConfig;
 
@@ -206,12 +207,14 @@ impl TrainingConfig {
 
 /// Reads a `train.json`, also one written before a setting existed (it gets the setting's
 /// default; [`super::files::load_config`]).
-pub fn load_training_config(path: &Path) -> std::result::Result<TrainingConfig, String> {
+pub fn load_training_config(path: &Path) -> std::result::Result<TrainingConfig, ConfigFileError> {
     super::files::load_config(path, &TrainingConfig::new(PspNetConfig::new()))
 }
 
 /// [`load_training_config`] on the text of a `train.json`.
-pub fn load_training_config_text(json: &str) -> std::result::Result<TrainingConfig, String> {
-    let value: serde_json::Value = serde_json::from_str(json).map_err(|e| e.to_string())?;
+pub fn load_training_config_text(
+    json: &str,
+) -> std::result::Result<TrainingConfig, ConfigFileError> {
+    let value: serde_json::Value = serde_json::from_str(json)?;
     super::files::config_from_value(value, &TrainingConfig::new(PspNetConfig::new()))
 }

@@ -723,7 +723,8 @@ mod tests {
         write(
             "# a recipe\nepochs = 7\nclass_weights = [1.0, 2.0, 1.0, 1.0, 0.5]\n[model]\nwidth = 0.5\n",
         )?;
-        let c = load_training_config(&path).map_err(|e| SegmenterError::invalid(&path, e))?;
+        let c = load_training_config(&path)
+            .map_err(|e| SegmenterError::invalid(&path, e.to_string()))?;
         let defaults = TrainingConfig::new(PspNetConfig::new());
         assert_eq!(c.epochs, 7);
         assert_eq!(c.model.width, 0.5);
@@ -733,13 +734,14 @@ mod tests {
         // A misspelt key, at the top or in [model], is named rather than ignored.
         write("epoch = 7\n")?;
         let err = load_training_config(&path).err();
-        assert!(err.is_some_and(|e| e.contains("`epoch`")));
+        assert!(err.is_some_and(|e| e.to_string().contains("`epoch`")));
         write("[model]\nwidht = 0.5\n")?;
         let err = load_training_config(&path).err();
-        assert!(err.is_some_and(|e| e.contains("`model.widht`")));
+        assert!(err.is_some_and(|e| e.to_string().contains("`model.widht`")));
         // An unset setting may be given.
         write("patience = 3\n")?;
-        let c = load_training_config(&path).map_err(|e| SegmenterError::invalid(&path, e))?;
+        let c = load_training_config(&path)
+            .map_err(|e| SegmenterError::invalid(&path, e.to_string()))?;
         assert_eq!(c.patience, Some(3));
         Ok(())
     }

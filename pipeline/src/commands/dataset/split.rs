@@ -84,10 +84,10 @@ pub fn run(ctx: &Context<'_>, args: &SplitArgs) -> Result<()> {
             &args.val_group,
             &args.test_group,
         )
-        .map_err(|m| {
+        .map_err(|e| {
             CliError::file(
                 &args.dataset,
-                m,
+                e.to_string(),
                 "name groups its items have (with --group-by prefix, the id up to its first `_`)",
             )
         })?
