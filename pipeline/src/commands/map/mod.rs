@@ -4,6 +4,7 @@ pub mod args;
 mod import;
 mod info;
 mod options;
+mod outputs;
 mod route;
 
 use anyhow::Result;
