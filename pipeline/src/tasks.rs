@@ -2,7 +2,6 @@
 //! from the `--config` file, and its setup from a map path (the map loaded or imported, the
 //! camera view's segmenter loaded), with one-line errors.
 
-use std::any::Any;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -12,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use sim::SimError;
 use sim::observer::{CameraViewConfig, SceneObserver};
 use sim::tasks::insertion::InsertionConfig;
-use sim::tasks::{Task, TaskVisitor};
+use sim::tasks::{Tables, TablesMut, Task, TaskVisitor};
 
 use crate::error::CliError;
 use crate::inputs::load_or_import_map;
@@ -39,32 +38,28 @@ pub struct AgentConfig {
 
 impl AgentConfig {
     /// The tables of the tasks' settings.
-    fn task_tables(&self) -> [&dyn Any; 4] {
-        [
-            &self.task,
-            &self.route,
-            &self.roundabout_driving,
-            &self.obstacle,
-        ]
+    fn tables(&self) -> Tables<'_> {
+        Tables {
+            insertion: &self.task,
+            route: &self.route,
+            ring_driving: &self.roundabout_driving,
+            obstacle: &self.obstacle,
+        }
     }
 
     /// The tables of the tasks' settings, to change in place.
-    fn task_tables_mut(&mut self) -> [&mut dyn Any; 4] {
-        [
-            &mut self.task,
-            &mut self.route,
-            &mut self.roundabout_driving,
-            &mut self.obstacle,
-        ]
+    fn tables_mut(&mut self) -> TablesMut<'_> {
+        TablesMut {
+            insertion: &mut self.task,
+            route: &mut self.route,
+            ring_driving: &mut self.roundabout_driving,
+            obstacle: &mut self.obstacle,
+        }
     }
 
-    /// The settings table of task `T` (the table of its config type).
+    /// The settings table of task `T`.
     pub fn task_table<T: Task>(&self) -> T::Config {
-        self.task_tables()
-            .into_iter()
-            .find_map(|table| table.downcast_ref::<T::Config>())
-            .cloned()
-            .unwrap_or_default()
+        T::table(self.tables()).clone()
     }
 }
 
@@ -79,12 +74,9 @@ pub struct InWorld<'a> {
 impl TaskVisitor for InWorld<'_> {
     type Output = ();
     fn visit<T: Task>(self) {
-        for table in self.agent.task_tables_mut() {
-            if let Some(config) = table.downcast_mut::<T::Config>()
-                && let Some(changed) = T::in_world(config, self.world)
-            {
-                *config = changed;
-            }
+        let config = T::table_mut(self.agent.tables_mut());
+        if let Some(changed) = T::in_world(config, self.world) {
+            *config = changed;
         }
     }
 }
@@ -165,25 +157,22 @@ pub fn camera_observer(map: &Map, camera: &CameraViewConfig) -> Result<Arc<dyn S
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sim::tasks::{TaskId, TaskVisitor};
+    use sim::tasks::{ObstacleAvoidance, RingDriving, RoundaboutInsertion, route::RouteFollowing};
 
-    struct HasTable<'a>(&'a AgentConfig);
-
-    impl TaskVisitor for HasTable<'_> {
-        type Output = bool;
-        fn visit<T: Task>(self) -> bool {
-            self.0
-                .task_tables()
-                .into_iter()
-                .any(|table| table.is::<T::Config>())
-        }
-    }
-
+    /// Each task reads the table of its own name in `[agent]`.
     #[test]
-    fn every_task_has_its_settings_table() {
-        let config = AgentConfig::default();
-        for id in TaskId::ALL {
-            assert!(id.visit(HasTable(&config)), "{id:?}");
-        }
+    fn each_task_reads_its_own_table() {
+        let mut config = AgentConfig::default();
+        config.task.time_limit_s = 101.0;
+        config.route.step_s = 0.102;
+        config.roundabout_driving.episode_s = 103.0;
+        config.obstacle.time_limit_s = 104.0;
+        assert_eq!(
+            config.task_table::<RoundaboutInsertion>().time_limit_s,
+            101.0
+        );
+        assert_eq!(config.task_table::<RouteFollowing>().step_s, 0.102);
+        assert_eq!(config.task_table::<RingDriving>().episode_s, 103.0);
+        assert_eq!(config.task_table::<ObstacleAvoidance>().time_limit_s, 104.0);
     }
 }

@@ -124,6 +124,7 @@ pub mod ring_driving;
 pub mod roundabouts;
 pub mod route;
 pub mod runner;
+pub mod tables;
 
 use std::fmt::Debug;
 use std::sync::Arc;
@@ -154,6 +155,7 @@ pub use ring_driving::{
 };
 pub use roundabouts::{EgoView, RoundaboutSet, RoundaboutSetup, RoundaboutTaskConfig, ego_scene};
 pub use runner::{ActionSet, Driving};
+pub use tables::{Tables, TablesMut};
 
 /// A driving task: an [`Env`] with everything training and evaluating an agent on it needs.
 pub trait Task: Driving + Env + Sized + 'static {
@@ -166,6 +168,12 @@ pub trait Task: Driving + Env + Sized + 'static {
 
     /// The task's entry in the registry.
     const ID: TaskId;
+
+    /// This task's table among every task's settings.
+    fn table<'a>(tables: Tables<'a>) -> &'a Self::Config;
+
+    /// This task's table among every task's settings, to change in place.
+    fn table_mut<'a>(tables: TablesMut<'a>) -> &'a mut Self::Config;
 
     /// Prepares the task on `map` (None for a task that makes its own road), with the
     /// observer that draws a camera view's layers (see [`Task::camera_view`]).

@@ -2,6 +2,7 @@
 //! baselines.
 
 use super::*;
+use crate::tasks::tables::{Tables, TablesMut};
 
 impl Task for RoundaboutInsertion {
     type Config = InsertionConfig;
@@ -9,6 +10,14 @@ impl Task for RoundaboutInsertion {
     type Condition = Condition;
 
     const ID: TaskId = TaskId::RoundaboutInsertion;
+
+    fn table<'a>(tables: Tables<'a>) -> &'a Self::Config {
+        tables.insertion
+    }
+
+    fn table_mut<'a>(tables: TablesMut<'a>) -> &'a mut Self::Config {
+        tables.insertion
+    }
 
     fn deciding_every(config: &InsertionConfig, steps: usize) -> Option<InsertionConfig> {
         Some(config.deciding_every(steps))

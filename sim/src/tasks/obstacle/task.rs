@@ -1,6 +1,7 @@
 //! Obstacle avoidance as a [`Task`]: its road, summary, conditions and rule baseline.
 
 use super::*;
+use crate::tasks::tables::{Tables, TablesMut};
 
 /// Prepared once and shared by every environment: the validated config, the straight
 /// road's map and the ego's lane centre (its path, for scenes).
@@ -93,6 +94,14 @@ impl Task for ObstacleAvoidance {
     type Condition = Scenario;
 
     const ID: TaskId = TaskId::ObstacleAvoidance;
+
+    fn table<'a>(tables: Tables<'a>) -> &'a Self::Config {
+        tables.obstacle
+    }
+
+    fn table_mut<'a>(tables: TablesMut<'a>) -> &'a mut Self::Config {
+        tables.obstacle
+    }
 
     /// The config's scenario, whatever the traffic (there is none).
     fn training_env(setup: &Arc<ObstacleSetup>, _: TrafficLevel) -> Self {

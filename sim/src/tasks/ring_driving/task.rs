@@ -2,6 +2,7 @@
 //! baseline.
 
 use super::*;
+use crate::tasks::tables::{Tables, TablesMut};
 
 /// How one episode went.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -35,6 +36,14 @@ impl Task for RingDriving {
     type Condition = TrafficLevel;
 
     const ID: TaskId = TaskId::RoundaboutDriving;
+
+    fn table<'a>(tables: Tables<'a>) -> &'a Self::Config {
+        tables.ring_driving
+    }
+
+    fn table_mut<'a>(tables: TablesMut<'a>) -> &'a mut Self::Config {
+        tables.ring_driving
+    }
 
     fn in_world(config: &RingDrivingConfig, world: &CalibratedWorld) -> Option<RingDrivingConfig> {
         Some(config.in_world(world))

@@ -2,6 +2,7 @@
 //! baseline.
 
 use super::*;
+use crate::tasks::tables::{Tables, TablesMut};
 
 /// How one episode went.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -42,6 +43,14 @@ impl Task for RouteFollowing {
     type Condition = RouteSplit;
 
     const ID: TaskId = TaskId::RouteFollowing;
+
+    fn table<'a>(tables: Tables<'a>) -> &'a Self::Config {
+        tables.route
+    }
+
+    fn table_mut<'a>(tables: TablesMut<'a>) -> &'a mut Self::Config {
+        tables.route
+    }
 
     fn camera_view(config: &RouteConfig) -> Option<&CameraViewConfig> {
         config.view.camera(config.camera.as_ref())
