@@ -108,7 +108,7 @@ def analyse(crate_dir):
             base = []
             segs = segs[1:]
         elif segs[0] in ("self", "super"):
-            base = list(p) if (mods[p].name == "mod.rs" or p == ()) else list(p)
+            base = list(p)  # `self` is this module; each `super` goes up one
             while segs and segs[0] in ("self", "super"):
                 if segs[0] == "super":
                     base = base[:-1]
